@@ -1,0 +1,41 @@
+"""Exceptions raised by cocd.
+
+Every error a user can cause is a :class:`CocdError`; its message names what is
+wrong (the argument, the grain, the solver) so it can be fixed without reading
+a traceback.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CocdError",
+    "OverlapError",
+    "ProblemError",
+    "SceneError",
+    "SolverError",
+    "SolverNotFound",
+]
+
+
+class CocdError(Exception):
+    """Base class of every error raised on purpose by cocd."""
+
+
+class SceneError(CocdError, ValueError):
+    """A scene (grains, walls, materials, gravity) is invalid."""
+
+
+class OverlapError(SceneError):
+    """Grains overlap each other or a wall by more than the allowed tolerance."""
+
+
+class ProblemError(CocdError, ValueError):
+    """A conic problem or a step parameter (time step, tolerance) is invalid."""
+
+
+class SolverNotFound(CocdError, LookupError):
+    """No usable backend has the requested name."""
+
+
+class SolverError(CocdError, RuntimeError):
+    """A backend failed to answer a problem it accepted."""

@@ -1,0 +1,347 @@
+"""The conic problem solved at every step (DESIGN.md section 1).
+
+Velocity-based primal (COCD)::
+
+    min_u  1/2 u'Mu - u'MU
+    s.t.   (D_a/dt + N_a u, mu_a T_a u) in SOC      for every contact a
+
+Force-based dual (the cone complementarity problem)::
+
+    min_p  1/2 p'Wp + p'b    s.t.  p in K = prod {|p_T| <= mu_a p_N}
+    W = H M^-1 H',  b = H U + (D/dt, 0),  u = U + M^-1 H'p
+
+:class:`ConicProblem` holds ``M, H, D, mu, dt, U`` once and derives the
+primal standard conic form, the dual data and the QP form on demand.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from cocd.cones import project_coulomb
+from cocd.contacts import ContactSet, contact_jacobian, dof_layout
+from cocd.errors import ProblemError
+from cocd.scene import Scene
+
+__all__ = [
+    "ConicProblem",
+    "PrimalConicForm",
+    "assemble",
+    "generalized_velocity",
+    "scatter_velocity",
+]
+
+FloatArray = NDArray[np.float64]
+ConeKind = Literal["nonneg", "soc"]
+
+
+@dataclass(frozen=True)
+class PrimalConicForm:
+    """The primal in standard conic form, dimensionless, in the velocity correction.
+
+    ``min 1/2 x'Px + q'x  s.t.  A x + s = b,  s in K`` with
+    ``x = (u - U) / velocity_scale`` (so ``q = 0`` and the objective is the work
+    of the contact impulses) and the objective divided by
+    ``mass_scale * velocity_scale**2``: millimetre and metre grains, fast and
+    slow flows, give the same numbers to a solver, and a solver's relative
+    gap is relative to the contact work, not to the kinetic energy of the flow.
+
+    Attributes
+    ----------
+    P : (ndof, ndof) csc, diagonal
+    q : (ndof,), zero
+    A : (rows, ndof) csc
+    b : (rows,)
+    cones : list of (kind, size)
+        ``("nonneg", rows)`` when every cone is linear (2D or frictionless), or
+        ``("soc", 3)`` once per contact in 3D.
+    mass_scale, velocity_scale : float
+        ``u = U + velocity_scale x``; a dual ``z`` of this form is an impulse divided
+        by ``mass_scale * velocity_scale``.
+    """
+
+    P: sp.csc_matrix
+    q: FloatArray
+    A: sp.csc_matrix
+    b: FloatArray
+    cones: list[tuple[ConeKind, int]]
+    mass_scale: float
+    velocity_scale: float
+    problem: ConicProblem = field(repr=False)
+
+    def velocity(self, x: FloatArray) -> FloatArray:
+        """Generalized velocity ``u`` from a primal point ``x``."""
+        return np.asarray(self.problem.U + np.asarray(x, dtype=np.float64) * self.velocity_scale)
+
+    def impulses(self, z: FloatArray) -> FloatArray:
+        """Contact impulses ``p``, shape ``(nc, m)``, from the duals of the rows of ``A``."""
+        pr = self.problem
+        z = np.asarray(z, dtype=np.float64) * (self.mass_scale * self.velocity_scale)
+        if pr.contact_dim == 1:
+            return z.reshape(pr.nc, 1)
+        if pr.contact_dim == 2:
+            lam = z.reshape(pr.nc, 2)
+            return np.stack([lam[:, 0] + lam[:, 1], pr.mu * (lam[:, 0] - lam[:, 1])], axis=1)
+        zz = z.reshape(pr.nc, 3)
+        return np.concatenate([zz[:, :1], pr.mu[:, None] * zz[:, 1:]], axis=1)
+
+
+@dataclass(eq=False)
+class ConicProblem:
+    """One step's contact problem.
+
+    Attributes
+    ----------
+    dim : int
+        Space dimension, 2 or 3.
+    contact_dim : int
+        Components per contact ``m``: 1 (frictionless, normal only) or ``dim``.
+    mass : (ndof,)
+        Diagonal of ``M``. Rotational unknowns are spin times radius, so every
+        entry is a mass (``J / R^2``).
+    H : (m nc, ndof) csr
+        Contact Jacobian, normal row first in each contact block.
+    D : (nc,)
+        Gaps at the start of the step.
+    mu : (nc,)
+        Friction coefficients.
+    dt : float
+        Time step.
+    U : (ndof,)
+        Free velocity ``u^k + dt M^-1 f_ext``.
+    """
+
+    dim: int
+    contact_dim: int
+    mass: FloatArray
+    H: sp.csr_matrix
+    D: FloatArray
+    mu: FloatArray
+    dt: float
+    U: FloatArray
+
+    def __post_init__(self) -> None:
+        self.mass = np.asarray(self.mass, dtype=np.float64)
+        self.D = np.asarray(self.D, dtype=np.float64).reshape(-1)
+        self.mu = np.asarray(self.mu, dtype=np.float64).reshape(-1)
+        self.U = np.asarray(self.U, dtype=np.float64).reshape(-1)
+        self.H = sp.csr_matrix(self.H, dtype=np.float64)
+        if self.dim not in (2, 3):
+            raise ProblemError(f"dim must be 2 or 3, got {self.dim}")
+        if self.contact_dim not in (1, self.dim):
+            raise ProblemError(f"contact_dim must be 1 or {self.dim}, got {self.contact_dim}")
+        if not (np.isfinite(self.dt) and self.dt > 0.0):
+            raise ProblemError(f"time step dt must be finite and > 0, got {self.dt}")
+        nc, ndof = self.D.size, self.mass.size
+        if self.H.shape != (self.contact_dim * nc, ndof):
+            raise ProblemError(
+                f"H has shape {self.H.shape}, expected {(self.contact_dim * nc, ndof)} "
+                f"for {nc} contacts of dimension {self.contact_dim} and {ndof} unknowns"
+            )
+        if self.mu.shape != (nc,) or self.U.shape != (ndof,):
+            raise ProblemError(
+                f"mu has shape {self.mu.shape} (expected ({nc},)) and U {self.U.shape} "
+                f"(expected ({ndof},))"
+            )
+        for name in ("mass", "D", "mu", "U"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ProblemError(f"{name} has non-finite entries")
+        if not np.all(np.isfinite(self.H.data)):
+            raise ProblemError("H has non-finite entries")
+        if np.any(self.mass <= 0.0):
+            raise ProblemError("every mass must be > 0")
+        if np.any(self.mu < 0.0):
+            raise ProblemError("friction coefficients must be >= 0")
+
+    # -- sizes and simple maps ----------------------------------------------
+    @property
+    def nc(self) -> int:
+        return int(self.D.size)
+
+    @property
+    def ndof(self) -> int:
+        return int(self.mass.size)
+
+    @cached_property
+    def offset(self) -> FloatArray:
+        """``(D/dt, 0)`` per contact, flattened, shape ``(m nc,)``."""
+        e = np.zeros((self.nc, self.contact_dim))
+        e[:, 0] = self.D / self.dt
+        return e.reshape(-1)
+
+    def velocity(self, p: FloatArray) -> FloatArray:
+        """``u = U + M^-1 H'p`` for impulses ``p`` of shape ``(nc, m)``."""
+        return np.asarray(self.U + (self.H.T @ np.asarray(p).reshape(-1)) / self.mass)
+
+    def relative_velocity(self, u: FloatArray) -> FloatArray:
+        """``w = H u + (D/dt, 0)``, shape ``(nc, m)``: normal gap rate then slip."""
+        return np.asarray(self.H @ u + self.offset).reshape(self.nc, self.contact_dim)
+
+    # -- dual data -----------------------------------------------------------
+    @cached_property
+    def W(self) -> sp.csr_matrix:
+        """Delassus operator ``H M^-1 H'`` as a sparse matrix (never dense)."""
+        return sp.csr_matrix(self.H @ sp.diags(1.0 / self.mass) @ self.H.T)
+
+    @cached_property
+    def b(self) -> FloatArray:
+        """Dual linear term ``H U + (D/dt, 0)``, flattened."""
+        return np.asarray(self.H @ self.U + self.offset)
+
+    def dual(self) -> tuple[sp.csr_matrix, FloatArray]:
+        """``(W, b)`` of the force-based dual."""
+        return self.W, self.b
+
+    @cached_property
+    def rho(self) -> FloatArray:
+        """Per-contact scaling ``m / trace(W_aa)``, shape ``(nc,)`` (a mass)."""
+        diag = np.asarray(self.H.multiply(self.H) @ (1.0 / self.mass))
+        return self.contact_dim / diag.reshape(self.nc, self.contact_dim).sum(axis=1)
+
+    # -- primal forms --------------------------------------------------------
+    @cached_property
+    def scales(self) -> tuple[float, float]:
+        """``(mass_scale, velocity_scale)`` that make the primal dimensionless.
+
+        The mass scale is the mean of ``M``; the velocity scale is the largest
+        distance of a contact's free relative velocity ``b_a`` to its dual cone,
+        i.e. how much the free motion violates the constraints, the size of the
+        correction the contacts must make (the largest ``|b|`` when none is violated).
+        """
+        mass_scale = float(np.mean(self.mass))
+        b = self.b.reshape(self.nc, self.contact_dim)
+        violation = np.linalg.norm(project_coulomb(-b, self.mu), axis=1)
+        v = float(np.max(violation, initial=0.0)) or float(np.max(np.abs(b), initial=0.0))
+        return mass_scale, (v if v > 0.0 else 1.0)
+
+    def primal_conic_form(self) -> PrimalConicForm:
+        """The primal as ``min 1/2 x'Px + q'x, A x + s = b, s in K`` (see PrimalConicForm)."""
+        ms, vs = self.scales
+        P = sp.diags(self.mass / ms).tocsc()
+        q = np.zeros(self.ndof)
+        m, nc = self.contact_dim, self.nc
+        cones: list[tuple[ConeKind, int]]
+        if m == 1:
+            A = -self.H
+            b = self.b / vs
+            cones = [("nonneg", nc)] if nc else []
+        elif m == 2:
+            # mu |T u| <= D/dt + N u as two half-planes: (N +- mu T) u >= -D/dt.
+            N, T = self.H[0::2], self.H[1::2]
+            muT = sp.diags(self.mu) @ T
+            A = -_interleave(N + muT, N - muT)
+            b = -(A @ self.U) / vs + np.repeat(self.D / (self.dt * vs), 2)
+            cones = [("nonneg", 2 * nc)] if nc else []
+        else:
+            scale = np.ones((nc, 3))
+            scale[:, 1:] = self.mu[:, None]
+            A = -(sp.diags(scale.reshape(-1)) @ self.H)
+            b = scale.reshape(-1) * self.b / vs
+            cones = [("soc", 3)] * nc
+        return PrimalConicForm(
+            P=P,
+            q=q,
+            A=sp.csc_matrix(A),
+            b=np.asarray(b, dtype=np.float64),
+            cones=cones,
+            mass_scale=ms,
+            velocity_scale=vs,
+            problem=self,
+        )
+
+    @property
+    def is_qp(self) -> bool:
+        """True when every cone is linear (2D or frictionless): the primal is a QP."""
+        return self.contact_dim < 3
+
+    def qp_form(self) -> tuple[sp.csc_matrix, FloatArray, sp.csc_matrix, FloatArray]:
+        """``(P, q, G, h)`` of ``min 1/2 x'Px + q'x  s.t.  G x <= h`` (dimensionless).
+
+        Only for linear cones; the duals of ``G`` map to impulses with
+        :meth:`PrimalConicForm.impulses` of :meth:`primal_conic_form`.
+        """
+        if not self.is_qp:
+            raise ProblemError("a 3D frictional problem has second-order cones, not a QP")
+        form = self.primal_conic_form()
+        return form.P, form.q, form.A, form.b
+
+
+def assemble(scene: Scene, contacts: ContactSet, dt: float) -> ConicProblem:
+    """Build the step problem of ``scene`` with the given potential contacts.
+
+    Frictionless scenes drop the rotations and the tangential rows (the
+    problem is then a QP in translations only).
+    """
+    if not (np.isfinite(dt) and dt > 0.0):
+        raise ProblemError(f"time step dt must be finite and > 0, got {dt}")
+    frictionless = scene.frictionless
+    first, per_grain = dof_layout(scene, frictionless)
+    ndof = scene.n_free * per_grain
+    H = contact_jacobian(contacts, first, per_grain, ndof)
+
+    free = scene.free
+    m = scene.masses[free]
+    d = scene.dim
+    blocks = np.empty((scene.n_free, per_grain))
+    blocks[:, :d] = m[:, None]
+    if not frictionless:
+        blocks[:, d:] = (scene.inertia[free] / scene.radii[free] ** 2)[:, None]
+    mass = blocks.reshape(-1)
+
+    u = generalized_velocity(scene, frictionless)
+    accel = np.zeros((scene.n_free, per_grain))
+    accel[:, :d] = scene.gravity
+    U = u + dt * accel.reshape(-1)
+    return ConicProblem(
+        dim=d,
+        contact_dim=1 if frictionless else d,
+        mass=mass,
+        H=H,
+        D=contacts.gap,
+        mu=contacts.mu,
+        dt=float(dt),
+        U=U,
+    )
+
+
+def generalized_velocity(scene: Scene, frictionless: bool) -> FloatArray:
+    """The free grains' velocities as one vector in the problem's unknowns."""
+    free = scene.free
+    v = scene.velocities[free]
+    if frictionless:
+        return np.asarray(v.reshape(-1))
+    r = scene.radii[free]
+    w = scene.angular_velocities[free]
+    spin = (r * w)[:, None] if scene.dim == 2 else r[:, None] * w
+    return np.asarray(np.concatenate([v, spin], axis=1).reshape(-1))
+
+
+def scatter_velocity(scene: Scene, u: FloatArray, frictionless: bool) -> None:
+    """Write a generalized velocity back into the scene's free grains."""
+    free = scene.free
+    d = scene.dim
+    per_grain = d if frictionless else (3 if d == 2 else 6)
+    blocks = np.asarray(u).reshape(-1, per_grain)
+    scene.velocities[free] = blocks[:, :d]
+    if not frictionless:
+        r = scene.radii[free]
+        if d == 2:
+            scene.angular_velocities[free] = blocks[:, 2] / r
+        else:
+            scene.angular_velocities[free] = blocks[:, 3:] / r[:, None]
+
+
+def _interleave(a: sp.spmatrix, b: sp.spmatrix) -> sp.csr_matrix:
+    """Rows ``a_0, b_0, a_1, b_1, ...``."""
+    n = a.shape[0]
+    stacked = sp.vstack([a, b]).tocsr()
+    order = np.empty(2 * n, dtype=np.int64)
+    order[0::2] = np.arange(n)
+    order[1::2] = np.arange(n, 2 * n)
+    return sp.csr_matrix(stacked[order])

@@ -1,0 +1,248 @@
+"""The time stepper: detect, assemble, solve, integrate, record.
+
+The stepper is the only place that knows both scenes and backends; it talks
+to the backends through :class:`~cocd.problem.ConicProblem` and
+:class:`~solvers.Solution` only.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+import solvers
+from cocd.contacts import ContactSet, detect_contacts
+from cocd.errors import ProblemError, SolverError
+from cocd.measure import kinetic_energy, potential_energy
+from cocd.problem import ConicProblem, assemble, scatter_velocity
+from cocd.residuals import residuals
+from cocd.scene import DEFAULT_OVERLAP_TOL, Scene
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["StepRecord", "Stepper", "match_impulses"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """Statistics of one step; ``t`` is the time at its end."""
+
+    step: int
+    t: float
+    n: int
+    nc: int
+    solver: str
+    status: str
+    iterations: int
+    detect_time: float
+    setup_time: float
+    solve_time: float
+    ccp_residual: float
+    coulomb_residual: float
+    dynamics_residual: float
+    cone_violation_max: float
+    complementarity_max: float
+    kinetic_energy: float
+    potential_energy: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class Stepper:
+    """Advance a scene with one convex contact problem per step.
+
+    At each step: detect potential contacts (gap below ``d_max``), assemble the
+    :class:`ConicProblem`, solve it with the chosen backend, set the velocity to
+    ``u = U + M^-1 H'p`` (the velocity the impulses imply, so that momentum is
+    conserved to rounding whatever the backend), then move the centres by
+    ``dt u`` (symplectic Euler).
+
+    Parameters
+    ----------
+    scene : Scene
+        Advanced in place.
+    dt : float
+        Time step (s).
+    solver : str
+        Backend name (see :func:`solvers.available`).
+    tol : float
+        Backend tolerance.
+    d_max : float, optional
+        Contact detection threshold; default half the mean radius.
+    warm_start : bool
+        Start backends that accept one from the previous step's impulses,
+        matched by contact pair.
+    max_iter, time_limit : optional
+        Passed to the backend.
+    solver_options : dict, optional
+        Backend-specific options.
+    overlap_tol : float
+        Largest initial overlap allowed, relative to the smaller radius.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        dt: float,
+        *,
+        solver: str = "clarabel",
+        tol: float = 1e-8,
+        d_max: float | None = None,
+        warm_start: bool = True,
+        max_iter: int | None = None,
+        time_limit: float | None = None,
+        solver_options: dict[str, Any] | None = None,
+        overlap_tol: float = DEFAULT_OVERLAP_TOL,
+    ) -> None:
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
+        try:
+            dt = float(dt)
+            tol = float(tol)
+        except (TypeError, ValueError):
+            raise ProblemError(f"dt and tol must be numbers, got {dt!r} and {tol!r}") from None
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ProblemError(f"time step dt must be finite and > 0, got {dt}")
+        if not (np.isfinite(tol) and tol > 0.0):
+            raise ProblemError(f"tol must be finite and > 0, got {tol}")
+        self.info = solvers.get(solver)  # unknown names fail here, before any work
+        if scene.dim not in self.info.dims:
+            raise ProblemError(f"solver {solver!r} does not handle {scene.dim}D scenes")
+        scene.check_overlaps(overlap_tol)
+        self.scene = scene
+        self.dt = dt
+        self.solver = solver
+        self.tol = tol
+        self.d_max = d_max
+        self.warm_start = warm_start and self.info.warm_start
+        self.max_iter = max_iter
+        self.time_limit = time_limit
+        self.solver_options = dict(solver_options or {})
+        self.records: list[StepRecord] = []
+        self.contacts: ContactSet | None = None
+        self.problem: ConicProblem | None = None
+        self.solution: solvers.Solution | None = None
+
+    @property
+    def step_count(self) -> int:
+        return len(self.records)
+
+    def step(self) -> StepRecord:
+        """Advance the scene by one time step and return its statistics."""
+        scene = self.scene
+        start = time.perf_counter()
+        contacts = detect_contacts(scene, self.d_max)
+        problem = assemble(scene, contacts, self.dt)
+        detect_time = time.perf_counter() - start
+
+        p0 = None
+        if self.warm_start and self.contacts is not None and self.solution is not None:
+            p0 = match_impulses(self.contacts.keys, self.solution.p, contacts.keys)
+            if p0.shape[1] != problem.contact_dim:
+                p0 = None
+        solution = solvers.solve(
+            problem,
+            solver=self.solver,
+            tol=self.tol,
+            warm_start=p0,
+            max_iter=self.max_iter,
+            time_limit=self.time_limit,
+            **self.solver_options,
+        )
+        k = self.step_count + 1
+        if not solution.found:
+            raise SolverError(
+                f"step {k} (t = {scene.time + self.dt:.6g} s): solver {self.solver!r} "
+                f"returned status {solution.status.value} "
+                f"({solution.extras.get('native_status', 'no native status')}) "
+                f"after {solution.iterations} iterations on {problem.nc} contacts"
+            )
+        res = residuals(problem, solution.u, solution.p)
+
+        scatter_velocity(scene, problem.velocity(solution.p), problem.contact_dim == 1)
+        free = scene.free
+        scene.positions[free] += self.dt * scene.velocities[free]
+        scene.time += self.dt
+
+        record = StepRecord(
+            step=k,
+            t=scene.time,
+            n=scene.n_free,
+            nc=problem.nc,
+            solver=self.solver,
+            status=solution.status.value,
+            iterations=solution.iterations,
+            detect_time=detect_time,
+            setup_time=solution.setup_time,
+            solve_time=solution.solve_time,
+            ccp_residual=res.ccp,
+            coulomb_residual=res.coulomb,
+            dynamics_residual=res.dynamics,
+            cone_violation_max=res.cone_violation_max,
+            complementarity_max=res.complementarity_max,
+            kinetic_energy=kinetic_energy(scene),
+            potential_energy=potential_energy(scene),
+        )
+        self.contacts, self.problem, self.solution = contacts, problem, solution
+        self.records.append(record)
+        return record
+
+    def run(
+        self,
+        n_steps: int | None = None,
+        *,
+        until: float | None = None,
+        callback: Callable[[StepRecord], None] | None = None,
+    ) -> list[StepRecord]:
+        """Take ``n_steps`` steps, or step until the time reaches ``until``.
+
+        Returns the records of the steps taken by this call.
+        """
+        if (n_steps is None) == (until is None):
+            raise ProblemError("give exactly one of n_steps and until")
+        if n_steps is None:
+            assert until is not None
+            n_steps = max(0, int(np.ceil((until - self.scene.time) / self.dt - 1e-9)))
+        if n_steps < 0:
+            raise ProblemError(f"n_steps must be >= 0, got {n_steps}")
+        taken = []
+        for _ in range(n_steps):
+            record = self.step()
+            taken.append(record)
+            if callback is not None:
+                callback(record)
+        return taken
+
+    def stats(self) -> pd.DataFrame:
+        """Every step's record as a pandas table, one row per step."""
+        import pandas as pd
+
+        columns = list(StepRecord.__dataclass_fields__)
+        return pd.DataFrame([r.as_dict() for r in self.records], columns=columns)
+
+
+def match_impulses(
+    prev_keys: NDArray[np.int64], prev_p: FloatArray, keys: NDArray[np.int64]
+) -> FloatArray:
+    """Impulses of the previous step for the contacts of this one, matched by pair key.
+
+    Contacts that are new get zero. ``prev_keys`` must be sorted (as
+    :func:`~cocd.contacts.detect_contacts` returns them).
+    """
+    out = np.zeros((keys.size, prev_p.shape[1]))
+    if prev_keys.size == 0 or keys.size == 0:
+        return out
+    pos = np.searchsorted(prev_keys, keys)
+    pos = np.minimum(pos, prev_keys.size - 1)
+    hit = prev_keys[pos] == keys
+    out[hit] = prev_p[pos[hit]]
+    return out

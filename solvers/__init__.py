@@ -1,0 +1,138 @@
+"""Interchangeable backends for the step problem, registered by name.
+
+>>> import solvers
+>>> solvers.available()                      # doctest: +SKIP
+['clarabel']
+>>> sol = solvers.solve(problem, solver="clarabel", tol=1e-8)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cocd.errors import ProblemError, SolverError, SolverNotFound
+from solvers.base import Solution, SolverInfo, Status
+from solvers.registry import available, get, register, registered, unavailable
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from cocd.problem import ConicProblem
+
+__all__ = [
+    "Solution",
+    "SolverInfo",
+    "SolverNotFound",
+    "Status",
+    "available",
+    "get",
+    "register",
+    "registered",
+    "solve",
+    "unavailable",
+]
+
+
+def solve(
+    problem: ConicProblem,
+    solver: str = "clarabel",
+    tol: float = 1e-8,
+    warm_start: ArrayLike | None = None,
+    max_iter: int | None = None,
+    time_limit: float | None = None,
+    verbose: bool = False,
+    **options: Any,
+) -> Solution:
+    """Solve one step problem with the backend called ``solver``.
+
+    Parameters
+    ----------
+    problem : ConicProblem
+    solver : str
+        A name from :func:`available`.
+    tol : float
+        Target accuracy; each backend maps it onto its own stopping criteria
+        (see its docstring). Judge the answer with :mod:`cocd.residuals`.
+    warm_start : (nc, m) array, optional
+        Impulses to start from; ignored with a warning by backends that
+        cannot use one.
+    max_iter : int, optional
+    time_limit : float, optional
+        Seconds.
+    verbose : bool
+        Let the backend print its log.
+    **options
+        Passed to the backend.
+
+    Returns
+    -------
+    Solution
+    """
+    info = get(solver)
+    if problem.dim not in info.dims:
+        raise ProblemError(
+            f"solver {solver!r} handles dimensions {info.dims}, not a {problem.dim}D problem"
+        )
+    if not (isinstance(tol, int | float) and math.isfinite(tol) and tol > 0):
+        raise ProblemError(f"tol must be a finite number > 0, got {tol!r}")
+    if max_iter is not None and (not isinstance(max_iter, int) or max_iter < 1):
+        raise ProblemError(f"max_iter must be a positive integer, got {max_iter!r}")
+    if time_limit is not None and not (math.isfinite(time_limit) and time_limit > 0):
+        raise ProblemError(f"time_limit must be > 0 seconds, got {time_limit!r}")
+    p0 = None
+    if warm_start is not None:
+        if not info.warm_start:
+            warnings.warn(
+                f"solver {solver!r} does not use a warm start; it is ignored",
+                UserWarning,
+                stacklevel=2,
+            )
+        else:
+            p0 = np.asarray(warm_start, dtype=np.float64)
+            if p0.size != problem.nc * problem.contact_dim:
+                raise ProblemError(
+                    f"warm_start has {p0.size} entries, expected "
+                    f"{(problem.nc, problem.contact_dim)}"
+                )
+            p0 = p0.reshape(problem.nc, problem.contact_dim)
+
+    if problem.nc == 0:
+        # Free flight: nothing to solve, every backend would agree.
+        return Solution(
+            u=problem.U.copy(),
+            p=np.zeros((0, problem.contact_dim)),
+            status=Status.OPTIMAL,
+            iterations=0,
+            setup_time=0.0,
+            solve_time=0.0,
+            solver=solver,
+        )
+
+    fn = info.load()
+    start = time.perf_counter()
+    try:
+        solution = fn(
+            problem,
+            tol=float(tol),
+            warm_start=p0,
+            max_iter=max_iter,
+            time_limit=time_limit,
+            verbose=verbose,
+            **options,
+        )
+    except (SolverError, ProblemError, TypeError):
+        raise
+    except Exception as exc:
+        raise SolverError(
+            f"solver {solver!r} failed after {time.perf_counter() - start:.3g} s on a problem "
+            f"with {problem.nc} contacts: {type(exc).__name__}: {exc}"
+        ) from exc
+    solution.solver = solver
+    solution.p = np.asarray(solution.p, dtype=np.float64).reshape(problem.nc, problem.contact_dim)
+    solution.u = np.asarray(solution.u, dtype=np.float64).reshape(problem.ndof)
+    return solution

@@ -1,0 +1,144 @@
+"""What every backend returns and declares.
+
+A backend is a function ``solve(problem, *, tol, warm_start, max_iter,
+time_limit, verbose, **options) -> Solution`` plus a :class:`SolverInfo` that
+states its capabilities as data.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from cocd.problem import ConicProblem
+
+__all__ = ["Solution", "SolveFunction", "SolverInfo", "Status"]
+
+FloatArray = NDArray[np.float64]
+
+
+class Status(str, Enum):
+    """The shared status vocabulary every native status is mapped onto."""
+
+    OPTIMAL = "optimal"
+    INACCURATE = "inaccurate"
+    MAX_ITER = "max_iter"
+    TIME_LIMIT = "time_limit"
+    INFEASIBLE = "infeasible"
+    ERROR = "error"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass
+class Solution:
+    """A backend's answer to one :class:`~cocd.problem.ConicProblem`.
+
+    Attributes
+    ----------
+    u : (ndof,) array
+        Generalized velocity at the end of the step, as the backend computed it.
+    p : (nc, m) array
+        Contact impulses, normal first.
+    status : Status
+    iterations : int
+    setup_time, solve_time : float
+        Seconds spent building the backend's data and solving.
+    solver : str
+        Registry name of the backend.
+    extras : dict
+        Native information: status string, objective, native residuals.
+    """
+
+    u: FloatArray
+    p: FloatArray
+    status: Status
+    iterations: int
+    setup_time: float
+    solve_time: float
+    solver: str
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def found(self) -> bool:
+        """True when the backend claims an answer (optimal or inaccurate)."""
+        return self.status in (Status.OPTIMAL, Status.INACCURATE)
+
+
+class SolveFunction(Protocol):
+    def __call__(
+        self,
+        problem: ConicProblem,
+        *,
+        tol: float,
+        warm_start: FloatArray | None,
+        max_iter: int | None,
+        time_limit: float | None,
+        verbose: bool,
+        **options: Any,
+    ) -> Solution: ...
+
+
+@dataclass(frozen=True)
+class SolverInfo:
+    """A backend's name, capabilities and where its code lives.
+
+    Attributes
+    ----------
+    name : str
+        Registry name.
+    entry : str
+        ``"module:function"`` of the solve function; imported on first use.
+    dims : tuple of int
+        Space dimensions accepted.
+    formulation : str
+        ``"primal"`` (velocity-based COCD), ``"dual"`` (force-based) or ``"ccp"``.
+    convex : bool
+        False for solvers of the non-convex Coulomb law.
+    warm_start : bool
+        Whether impulses from the previous step are used.
+    needs_licence : bool
+    requires : tuple of str
+        Python modules that must be importable.
+    description : str
+    probe : callable, optional
+        Returns ``None`` when usable, else the reason it is not (e.g. no licence).
+    """
+
+    name: str
+    entry: str
+    dims: tuple[int, ...] = (2, 3)
+    formulation: str = "primal"
+    convex: bool = True
+    warm_start: bool = False
+    needs_licence: bool = False
+    requires: tuple[str, ...] = ()
+    description: str = ""
+    probe: Callable[[], str | None] | None = None
+
+    def unavailable_reason(self) -> str | None:
+        """Why the backend cannot be used here, or ``None`` if it can."""
+        for module in self.requires:
+            try:
+                found = importlib.util.find_spec(module) is not None
+            except (ImportError, ValueError):
+                found = False
+            if not found:
+                return f"Python package '{module}' is not installed"
+        if self.probe is not None:
+            return self.probe()
+        return None
+
+    def load(self) -> SolveFunction:
+        module, _, function = self.entry.partition(":")
+        solve: SolveFunction = getattr(importlib.import_module(module), function)
+        return solve

@@ -1,0 +1,56 @@
+"""Shared fixtures.
+
+Every solve made in the test suite goes through :func:`checked_solve`, which
+asserts that the impulses lie in their Coulomb cones and that the step's
+``ccp_residual`` is at most ``10 tol`` (unless a test marks itself
+``unchecked_solutions``, e.g. to provoke a failure).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import solvers
+from cocd.residuals import ccp_residual
+
+CONE_SLACK = 1e-6
+
+
+def assert_answer_ok(problem, solution, tol):
+    p = solution.p
+    assert np.all(np.isfinite(p)) and np.all(np.isfinite(solution.u))
+    if problem.nc == 0:
+        return
+    assert np.all(p[:, 0] >= 0.0), f"negative normal impulse {p[:, 0].min()}"
+    if problem.contact_dim > 1:
+        pt = np.linalg.norm(p[:, 1:], axis=1)
+        excess = pt - problem.mu * p[:, 0] * (1.0 + CONE_SLACK)
+        assert np.all(excess <= 0.0), f"impulse outside its Coulomb cone by {excess.max():g}"
+    r = ccp_residual(problem, p)
+    assert r <= 10 * tol, f"{solution.solver}: ccp_residual {r:.3g} > 10 tol = {10 * tol:g}"
+
+
+@pytest.fixture(autouse=True)
+def checked_solutions(request, monkeypatch):
+    if request.node.get_closest_marker("unchecked_solutions"):
+        yield []
+        return
+    real_solve = solvers.solve
+    seen = []
+
+    def checked_solve(problem, solver="clarabel", tol=1e-8, *args, **kwargs):
+        solution = real_solve(problem, solver, tol, *args, **kwargs)
+        if solution.found:
+            assert_answer_ok(problem, solution, tol)
+        seen.append(solution)
+        return solution
+
+    monkeypatch.setattr(solvers, "solve", checked_solve)
+    yield seen
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "unchecked_solutions: do not assert cone membership and ccp <= 10 tol"
+    )
