@@ -32,7 +32,8 @@ def project_coulomb(x: ArrayLike, mu: ArrayLike) -> FloatArray:
     xn = x[:, 0]
     xt = x[:, 1:]
     nt = np.linalg.norm(xt, axis=1)
-    inside = nt <= mu * xn
+    # xn >= 0 matters when mu = 0: then 0 <= mu * xn also holds for xn < 0 (as -0.0).
+    inside = (nt <= mu * xn) & (xn >= 0.0)
     polar = ~inside & (mu * nt <= -xn)
     side = ~inside & ~polar  # nt > 0 here
     out = x.copy()

@@ -150,14 +150,22 @@ class ConicProblem:
                 f"(expected ({ndof},))"
             )
         for name in ("mass", "D", "mu", "U"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise ProblemError(f"{name} has non-finite entries")
+            bad = np.flatnonzero(~np.isfinite(getattr(self, name)))
+            if bad.size:
+                raise ProblemError(
+                    f"{name}[{bad[0]}] is {getattr(self, name)[bad[0]]}: {name} must be finite "
+                    f"({bad.size} entries are not)"
+                )
         if not np.all(np.isfinite(self.H.data)):
             raise ProblemError("H has non-finite entries")
-        if np.any(self.mass <= 0.0):
-            raise ProblemError("every mass must be > 0")
-        if np.any(self.mu < 0.0):
-            raise ProblemError("friction coefficients must be >= 0")
+        bad = np.flatnonzero(self.mass <= 0.0)
+        if bad.size:
+            raise ProblemError(f"mass[{bad[0]}] is {self.mass[bad[0]]:g}: every mass must be > 0")
+        bad = np.flatnonzero(self.mu < 0.0)
+        if bad.size:
+            raise ProblemError(
+                f"mu[{bad[0]}] is {self.mu[bad[0]]:g}: friction coefficients must be >= 0"
+            )
 
     # -- sizes and simple maps ----------------------------------------------
     @property

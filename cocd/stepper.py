@@ -116,7 +116,9 @@ class Stepper:
             raise ProblemError(f"tol must be finite and > 0, got {tol}")
         self.info = solvers.get(solver)  # unknown names fail here, before any work
         if scene.dim not in self.info.dims:
-            raise ProblemError(f"solver {solver!r} does not handle {scene.dim}D scenes")
+            raise ProblemError(
+                f"solver {solver!r} handles dimensions {self.info.dims}, not a {scene.dim}D scene"
+            )
         scene.check_overlaps(overlap_tol)
         self.scene = scene
         self.dt = dt

@@ -1,0 +1,133 @@
+"""The solver registry: names, capabilities, availability, plug-ins."""
+
+from __future__ import annotations
+
+from importlib.metadata import EntryPoint
+
+import numpy as np
+import pytest
+
+import solvers
+from cocd import ProblemError, SolverError, SolverNotFound, Stepper, stack
+from solvers import Solution, SolverInfo, Status, registry
+
+
+@pytest.fixture
+def clean_registry(monkeypatch):
+    """A registry that forgets what a test adds to it."""
+    monkeypatch.setattr(registry, "_registry", dict(registry.registered()))
+
+
+def test_clarabel_is_available_with_its_capabilities():
+    assert "clarabel" in solvers.available()
+    info = solvers.get("clarabel")
+    assert info.dims == (2, 3)
+    assert info.formulation == "primal"
+    assert info.convex and not info.warm_start and not info.needs_licence
+
+
+def test_missing_package_is_unavailable_with_reason(clean_registry):
+    solvers.register(
+        SolverInfo(name="ghost", entry="ghost_pkg:solve", requires=("ghost_pkg_not_installed",))
+    )
+    assert "ghost" not in solvers.available()
+    assert "ghost_pkg_not_installed" in solvers.unavailable()["ghost"]
+    with pytest.raises(SolverNotFound, match="registered but unavailable: Python package"):
+        solvers.get("ghost")
+
+
+def test_licence_probe_reason(clean_registry):
+    solvers.register(
+        SolverInfo(name="licensed", entry="x:y", needs_licence=True, probe=lambda: "no licence")
+    )
+    assert solvers.unavailable()["licensed"] == "no licence"
+
+
+def _copy_solver(problem, *, tol, warm_start, max_iter, time_limit, verbose, **options):
+    """A test backend: answers with the warm start it was given (or zero)."""
+    p = np.zeros((problem.nc, problem.contact_dim)) if warm_start is None else warm_start
+    return Solution(
+        u=problem.velocity(p),
+        p=p,
+        status=Status.OPTIMAL,
+        iterations=1,
+        setup_time=0.0,
+        solve_time=0.0,
+        solver="copy",
+        extras={"saw_warm_start": warm_start is not None},
+    )
+
+
+def test_third_party_backend_and_warm_start(clean_registry):
+    solvers.register(
+        SolverInfo(
+            name="copy",
+            entry=f"{__name__}:_copy_solver",
+            warm_start=True,
+            dims=(2,),
+        )
+    )
+    assert "copy" in solvers.available()
+    with pytest.raises(ValueError, match="already registered"):
+        solvers.register(SolverInfo(name="copy", entry="x:y"))
+    # Dimension capability is enforced.
+    with pytest.raises(ProblemError, match=r"handles dimensions \(2,\), not a 3D"):
+        Stepper(stack(1, dim=3), 1e-3, solver="copy")
+
+
+@pytest.mark.unchecked_solutions
+def test_stepper_warm_starts_matched_by_pair(clean_registry):
+    solvers.register(SolverInfo(name="copy", entry=f"{__name__}:_copy_solver", warm_start=True))
+    stepper = Stepper(stack(3, dim=2), 1e-3, solver="copy")
+    stepper.step()
+    assert stepper.solution.extras["saw_warm_start"] is False
+    stepper.step()
+    assert stepper.solution.extras["saw_warm_start"] is True
+
+
+def test_warm_start_ignored_with_warning_by_clarabel():
+    stepper = Stepper(stack(2, dim=2), 1e-3)
+    stepper.step()
+    problem, p = stepper.problem, stepper.solution.p
+    with pytest.warns(UserWarning, match="does not use a warm start"):
+        solvers.solve(problem, "clarabel", warm_start=p)
+
+
+def test_entry_point_plugins_are_loaded(monkeypatch):
+    ep = EntryPoint(name="copy_ep", value=f"{__name__}:PLUGIN", group=registry.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(registry, "entry_points", lambda group: [ep])
+    monkeypatch.setattr(registry, "_registry", {})
+    monkeypatch.setattr(registry, "_entry_points_loaded", False)
+    assert "copy_ep" in solvers.available()
+    assert "clarabel" in solvers.available()
+
+
+def test_broken_plugin_warns_instead_of_breaking(monkeypatch):
+    ep = EntryPoint(name="broken", value="no_such_module_xyz:thing", group="cocd.solvers")
+    monkeypatch.setattr(registry, "entry_points", lambda group: [ep])
+    monkeypatch.setattr(registry, "_registry", {})
+    monkeypatch.setattr(registry, "_entry_points_loaded", False)
+    with pytest.warns(RuntimeWarning, match="'broken' could not be loaded"):
+        names = solvers.available()
+    assert "clarabel" in names
+
+
+def _crashing_solver(problem, **kwargs):
+    raise ZeroDivisionError("boom")
+
+
+@pytest.mark.unchecked_solutions
+def test_backend_crash_becomes_solver_error(clean_registry):
+    solvers.register(SolverInfo(name="crash", entry=f"{__name__}:_crashing_solver"))
+    with pytest.raises(SolverError, match=r"solver 'crash' failed .*ZeroDivisionError: boom"):
+        Stepper(stack(2, dim=2), 1e-3, solver="crash").step()
+
+
+@pytest.mark.unchecked_solutions
+def test_unsolved_step_names_step_and_backend():
+    stepper = Stepper(stack(5, dim=3, mu=0.5), 1e-3, max_iter=1)
+    with pytest.raises(SolverError, match=r"step 1 .*solver 'clarabel' returned status max_iter"):
+        stepper.step()
+
+
+PLUGIN = SolverInfo(name="copy_ep", entry=f"{__name__}:_copy_solver", warm_start=True)
