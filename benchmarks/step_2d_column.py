@@ -55,7 +55,7 @@ def main() -> None:
     print(f"iterations     {solution.iterations}")
     print(f"setup time     {solution.setup_time:.3f} s")
     print(f"solve time     {solution.solve_time:.3f} s (wall {wall:.3f} s)")
-    for key in ("attempts",):
+    for key in ("attempts", "polish_time"):
         if key in solution.extras:
             print(f"{key:14s} {solution.extras[key]}")
     print(f"ccp_residual   {res.ccp:.3e}")

@@ -131,3 +131,11 @@ def test_unsolved_step_names_step_and_backend():
 
 
 PLUGIN = SolverInfo(name="copy_ep", entry=f"{__name__}:_copy_solver", warm_start=True)
+
+
+def test_suite_wide_check_catches_a_wrong_answer(clean_registry):
+    """The conftest check on every solve fails a backend that claims a wrong answer."""
+    solvers.register(SolverInfo(name="copy", entry=f"{__name__}:_copy_solver"))
+    stepper = Stepper(stack(2, dim=2), 1e-3, solver="copy")  # answers p = 0: grains fall through
+    with pytest.raises(AssertionError, match=r"copy: ccp_residual 1 > 10 tol"):
+        stepper.step()
