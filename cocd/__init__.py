@@ -5,7 +5,7 @@ The data flow is one way::
     Scene -> ContactSet -> ConicProblem -> solvers.solve -> Solution -> Stepper -> records
 """
 
-from cocd.builders import column_2d, stack
+from cocd.builders import box_3d, column_2d, stack
 from cocd.contacts import ContactSet, contact_jacobian, detect_contacts
 from cocd.errors import (
     CocdError,
@@ -46,6 +46,7 @@ __all__ = [
     "Stepper",
     "Wall",
     "assemble",
+    "box_3d",
     "ccp_residual",
     "column_2d",
     "contact_jacobian",

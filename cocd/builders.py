@@ -7,7 +7,7 @@ import numpy as np
 from cocd.errors import SceneError
 from cocd.scene import Scene, Wall
 
-__all__ = ["column_2d", "stack"]
+__all__ = ["box_3d", "column_2d", "stack"]
 
 
 def column_2d(
@@ -101,3 +101,57 @@ def stack(
         walls=[Wall(np.zeros(dim), up)],
         mu=mu,
     )
+
+
+def box_3d(
+    n_grains: int = 2000,
+    *,
+    diameter: float = 0.005,
+    width: float | None = None,
+    polydispersity: float = 0.1,
+    density: float = 2500.0,
+    mu: float = 0.3,
+    mu_wall: float | None = None,
+    seed: int = 0,
+) -> Scene:
+    """Spheres on a loose cubic lattice inside a square box (floor and four side walls).
+
+    Parameters
+    ----------
+    n_grains : int
+        Number of spheres.
+    diameter : float
+        Largest diameter is ``diameter``; radii uniform in
+        ``r (1 -+ polydispersity / 2)`` with ``r (1 + polydispersity / 2) = diameter / 2``.
+    width : float, optional
+        Inner side of the box; default fits a square base of about
+        ``n_grains ** (1/3)`` sites per side.
+    """
+    if int(n_grains) < 1:
+        raise SceneError(f"n_grains must be >= 1, got {n_grains}")
+    if not diameter > 0:
+        raise SceneError(f"diameter must be > 0, got {diameter}")
+    if not 0 <= polydispersity < 1:
+        raise SceneError(f"polydispersity must be in [0, 1), got {polydispersity}")
+    n = int(n_grains)
+    spacing = 1.02 * diameter
+    side = max(1, int(np.ceil(n ** (1.0 / 3.0))))
+    if width is not None:
+        if not width >= spacing:
+            raise SceneError(f"width {width} is smaller than one grain site {spacing}")
+        side = int(np.floor(width / spacing))
+    box = side * spacing if width is None else float(width)
+    k = np.arange(n)
+    ix, iy, iz = k % side, (k // side) % side, k // (side * side)
+    positions = (np.stack([ix, iy, iz], axis=1) + 0.5) * spacing
+    rng = np.random.default_rng(seed)
+    r_max = diameter / 2.0
+    radii = r_max / (1 + polydispersity / 2) * (1.0 + polydispersity * (rng.random(n) - 0.5))
+    walls = [
+        Wall((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+        Wall((0.0, 0.0, 0.0), (1.0, 0.0, 0.0)),
+        Wall((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+        Wall((box, 0.0, 0.0), (-1.0, 0.0, 0.0)),
+        Wall((0.0, box, 0.0), (0.0, -1.0, 0.0)),
+    ]
+    return Scene(positions, radii, density=density, walls=walls, mu=mu, mu_wall=mu_wall)

@@ -31,6 +31,7 @@ from cocd.scene import Scene
 
 __all__ = [
     "ConicProblem",
+    "DualConicForm",
     "PrimalConicForm",
     "assemble",
     "generalized_velocity",
@@ -38,7 +39,7 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-ConeKind = Literal["nonneg", "soc"]
+ConeKind = Literal["zero", "nonneg", "soc"]
 
 
 @dataclass(frozen=True)
@@ -59,11 +60,15 @@ class PrimalConicForm:
     A : (rows, ndof) csc
     b : (rows,)
     cones : list of (kind, size)
-        ``("nonneg", rows)`` when every cone is linear (2D or frictionless), or
-        ``("soc", 3)`` once per contact in 3D.
+        ``("nonneg", rows)`` when every cone is linear (2D, frictionless, or
+        faceted), or ``("soc", 3)`` once per contact in 3D.
     mass_scale, velocity_scale : float
         ``u = U + velocity_scale x``; a dual ``z`` of this form is an impulse divided
         by ``mass_scale * velocity_scale``.
+    facets : int or None
+        Number of facets of the pyramidal cone replacing each circular one in 3D
+        (an approximation: friction up to ``mu`` along ``facets`` directions,
+        ``mu cos(pi / facets)`` in between), or ``None`` for the exact cones.
     """
 
     P: sp.csc_matrix
@@ -74,6 +79,7 @@ class PrimalConicForm:
     mass_scale: float
     velocity_scale: float
     problem: ConicProblem = field(repr=False)
+    facets: int | None = None
 
     def velocity(self, x: FloatArray) -> FloatArray:
         """Generalized velocity ``u`` from a primal point ``x``."""
@@ -83,6 +89,11 @@ class PrimalConicForm:
         """Contact impulses ``p``, shape ``(nc, m)``, from the duals of the rows of ``A``."""
         pr = self.problem
         z = np.asarray(z, dtype=np.float64) * (self.mass_scale * self.velocity_scale)
+        if self.facets is not None:
+            lam = z.reshape(pr.nc, self.facets)
+            e = _facet_directions(self.facets)  # (k, 2)
+            pt = pr.mu[:, None] * (lam @ e)
+            return np.concatenate([lam.sum(axis=1)[:, None], pt], axis=1)
         if pr.contact_dim == 1:
             return z.reshape(pr.nc, 1)
         if pr.contact_dim == 2:
@@ -90,6 +101,32 @@ class PrimalConicForm:
             return np.stack([lam[:, 0] + lam[:, 1], pr.mu * (lam[:, 0] - lam[:, 1])], axis=1)
         zz = z.reshape(pr.nc, 3)
         return np.concatenate([zz[:, :1], pr.mu[:, None] * zz[:, 1:]], axis=1)
+
+
+@dataclass(frozen=True)
+class DualConicForm:
+    """The force-based dual in standard conic form, dimensionless.
+
+    ``min 1/2 x'Px + q'x  s.t.  A x + s = b,  s in K`` with ``x`` the impulses
+    divided by ``impulse_scale`` (see :meth:`ConicProblem.dual_conic_form`).
+    """
+
+    P: sp.csc_matrix
+    q: FloatArray
+    A: sp.csc_matrix
+    b: FloatArray
+    cones: list[tuple[ConeKind, int]]
+    impulse_scale: float
+    problem: ConicProblem = field(repr=False)
+
+    def impulses(self, x: FloatArray) -> FloatArray:
+        """Impulses ``(nc, m)`` from a point ``x`` of this form."""
+        pr = self.problem
+        return np.asarray(x, dtype=np.float64).reshape(pr.nc, pr.contact_dim) * self.impulse_scale
+
+    def point(self, p: FloatArray) -> FloatArray:
+        """The point ``x`` of this form for impulses ``p`` (e.g. a warm start)."""
+        return np.asarray(p, dtype=np.float64).reshape(-1) / self.impulse_scale
 
 
 @dataclass(eq=False)
@@ -228,13 +265,44 @@ class ConicProblem:
         v = float(np.max(violation, initial=0.0)) or float(np.max(np.abs(b), initial=0.0))
         return mass_scale, (v if v > 0.0 else 1.0)
 
-    def primal_conic_form(self) -> PrimalConicForm:
-        """The primal as ``min 1/2 x'Px + q'x, A x + s = b, s in K`` (see PrimalConicForm)."""
+    def primal_conic_form(self, facets: int | None = None) -> PrimalConicForm:
+        """The primal as ``min 1/2 x'Px + q'x, A x + s = b, s in K`` (see PrimalConicForm).
+
+        ``facets`` replaces each 3D second-order cone by a pyramid of that many
+        facets (an inner approximation of the friction cone), giving a QP.
+        """
         ms, vs = self.scales
         P = sp.diags(self.mass / ms).tocsc()
         q = np.zeros(self.ndof)
         m, nc = self.contact_dim, self.nc
         cones: list[tuple[ConeKind, int]]
+        if facets is not None and m == 3:
+            k = int(facets)
+            if k < 3 or k != facets:
+                raise ProblemError(f"facets must be an integer >= 3, got {facets!r}")
+            e = _facet_directions(k)  # (k, 2)
+            # Row (a, j) = N_a + mu_a (e_j1 T1_a + e_j2 T2_a): one selection-and-weight
+            # matrix S of shape (k nc, 3 nc) applied to H, contact-major.
+            rows = np.repeat(np.arange(k * nc), 3)
+            cols = (3 * np.repeat(np.arange(nc), k)[:, None] + np.arange(3)).reshape(-1)
+            weights = np.empty((nc, k, 3))
+            weights[:, :, 0] = 1.0
+            weights[:, :, 1:] = self.mu[:, None, None] * e[None, :, :]
+            S = sp.csr_matrix((weights.reshape(-1), (rows, cols)), shape=(k * nc, 3 * nc))
+            R = sp.csr_matrix(S @ self.H)
+            A = -R
+            b = (R @ self.U + np.repeat(self.D / self.dt, k)) / vs
+            return PrimalConicForm(
+                P=P,
+                q=q,
+                A=sp.csc_matrix(A),
+                b=np.asarray(b, dtype=np.float64),
+                cones=[("nonneg", k * nc)] if nc else [],
+                mass_scale=ms,
+                velocity_scale=vs,
+                problem=self,
+                facets=k,
+            )
         if m == 1:
             A = -self.H
             b = self.b / vs
@@ -268,16 +336,92 @@ class ConicProblem:
         """True when every cone is linear (2D or frictionless): the primal is a QP."""
         return self.contact_dim < 3
 
-    def qp_form(self) -> tuple[sp.csc_matrix, FloatArray, sp.csc_matrix, FloatArray]:
+    def qp_form(
+        self, facets: int | None = None
+    ) -> tuple[sp.csc_matrix, FloatArray, sp.csc_matrix, FloatArray]:
         """``(P, q, G, h)`` of ``min 1/2 x'Px + q'x  s.t.  G x <= h`` (dimensionless).
 
-        Only for linear cones; the duals of ``G`` map to impulses with
-        :meth:`PrimalConicForm.impulses` of :meth:`primal_conic_form`.
+        Only for linear cones, or 3D with ``facets``; the duals of ``G`` map to
+        impulses with :meth:`PrimalConicForm.impulses` of
+        ``primal_conic_form(facets)``, which also maps ``x`` to velocities.
         """
-        if not self.is_qp:
-            raise ProblemError("a 3D frictional problem has second-order cones, not a QP")
-        form = self.primal_conic_form()
+        if not self.is_qp and facets is None:
+            raise ProblemError(
+                "a 3D frictional problem has second-order cones, not a QP; "
+                "pass facets= for a faceted approximation"
+            )
+        form = self.primal_conic_form(facets)
         return form.P, form.q, form.A, form.b
+
+    def dual_conic_form(self) -> DualConicForm:
+        """The force-based dual as ``min 1/2 x'Px + q'x, A x + s = b, s in K``.
+
+        ``x = p / (mass_scale * velocity_scale)`` flattened (normal first in each
+        contact), ``P = mass_scale W`` (sparse), ``q = b / velocity_scale``. The
+        rows of ``A`` are grouped by cone: ``("zero", .)`` (tangential impulses
+        of frictionless contacts), ``("nonneg", .)`` (normal impulses of
+        frictionless contacts; ``mu p_N -+ p_T`` in 2D), then one ``("soc", 3)``
+        per 3D frictional contact: ``(mu p_N, p_T)``.
+        """
+        ms, vs = self.scales
+        nc, m = self.nc, self.contact_dim
+        base = np.arange(nc) * m
+        zero_c: list[np.ndarray] = []
+        lin_r: list[np.ndarray] = []
+        lin_c: list[np.ndarray] = []
+        lin_v: list[np.ndarray] = []
+        frictional = self.mu > 0.0 if m > 1 else np.zeros(nc, dtype=bool)
+        smooth = np.flatnonzero(~frictional)
+        # Frictionless contacts: p_N >= 0, p_T = 0.
+        lin_r.append(np.arange(smooth.size))
+        lin_c.append(base[smooth])
+        lin_v.append(np.ones(smooth.size))
+        for t in range(1, m):
+            zero_c.append(base[smooth] + t)
+        n_lin = smooth.size
+        rough = np.flatnonzero(frictional)
+        if m == 2:
+            # mu p_N - p_T >= 0 and mu p_N + p_T >= 0.
+            for sign in (-1.0, 1.0):
+                r = n_lin + np.arange(rough.size)
+                lin_r += [r, r]
+                lin_c += [base[rough], base[rough] + 1]
+                lin_v += [self.mu[rough], np.full(rough.size, sign)]
+                n_lin += rough.size
+        zero_cols = np.concatenate(zero_c) if zero_c else np.zeros(0, dtype=np.int64)
+        n_zero = zero_cols.size
+        soc_r: list[np.ndarray] = []
+        soc_c: list[np.ndarray] = []
+        soc_v: list[np.ndarray] = []
+        n_soc = 0
+        if m == 3:
+            start = n_zero + n_lin + 3 * np.arange(rough.size)
+            soc_r = [start, start + 1, start + 2]
+            soc_c = [base[rough], base[rough] + 1, base[rough] + 2]
+            soc_v = [self.mu[rough], np.ones(rough.size), np.ones(rough.size)]
+            n_soc = rough.size
+        r_all = np.concatenate([np.arange(n_zero), n_zero + np.concatenate(lin_r), *soc_r]).astype(
+            np.int64
+        )
+        c_all = np.concatenate([zero_cols, np.concatenate(lin_c), *soc_c]).astype(np.int64)
+        v_all = np.concatenate([np.ones(n_zero), np.concatenate(lin_v), *soc_v])
+        n_rows = n_zero + n_lin + 3 * n_soc
+        A = -sp.csc_matrix((v_all, (r_all, c_all)), shape=(n_rows, nc * m))
+        cones: list[tuple[ConeKind, int]] = []
+        if n_zero:
+            cones.append(("zero", n_zero))
+        if n_lin:
+            cones.append(("nonneg", n_lin))
+        cones += [("soc", 3)] * n_soc
+        return DualConicForm(
+            P=sp.csc_matrix(ms * self.W),
+            q=np.asarray(self.b / vs, dtype=np.float64),
+            A=A,
+            b=np.zeros(n_rows),
+            cones=cones,
+            impulse_scale=ms * vs,
+            problem=self,
+        )
 
 
 def assemble(scene: Scene, contacts: ContactSet, dt: float) -> ConicProblem:
@@ -343,6 +487,12 @@ def scatter_velocity(scene: Scene, u: FloatArray, frictionless: bool) -> None:
             scene.angular_velocities[free] = blocks[:, 2] / r
         else:
             scene.angular_velocities[free] = blocks[:, 3:] / r[:, None]
+
+
+def _facet_directions(k: int) -> FloatArray:
+    """Unit tangential directions ``(cos 2 pi j / k, sin 2 pi j / k)``, shape ``(k, 2)``."""
+    theta = 2.0 * np.pi * np.arange(k) / k
+    return np.stack([np.cos(theta), np.sin(theta)], axis=1)
 
 
 def _interleave(a: sp.spmatrix, b: sp.spmatrix) -> sp.csr_matrix:

@@ -17,7 +17,7 @@ import numpy as np
 
 from cocd.errors import ProblemError, SolverError, SolverNotFound
 from solvers.base import Solution, SolverInfo, Status
-from solvers.registry import available, get, register, registered, unavailable
+from solvers.registry import available, get, register, registered, resolve, unavailable
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -33,6 +33,7 @@ __all__ = [
     "get",
     "register",
     "registered",
+    "resolve",
     "solve",
     "unavailable",
 ]
@@ -73,12 +74,22 @@ def solve(
     -------
     Solution
     """
-    info = get(solver)
+    info, name_options = resolve(solver)
+    options = {**info.options, **name_options, **options}
+    if info.linear_cones_only and not problem.is_qp and "facets" not in options:
+        raise ProblemError(
+            f"solver {solver!r} takes linear cones only, and this 3D frictional problem has "
+            f"second-order cones: use '{info.name}:facets=8' for a faceted approximation"
+        )
     if problem.dim not in info.dims:
         raise ProblemError(
             f"solver {solver!r} handles dimensions {info.dims}, not a {problem.dim}D problem"
         )
-    if not (isinstance(tol, int | float) and math.isfinite(tol) and tol > 0):
+    try:
+        tol = float(tol)
+    except (TypeError, ValueError):
+        raise ProblemError(f"tol must be a finite number > 0, got {tol!r}") from None
+    if not (math.isfinite(tol) and tol > 0):
         raise ProblemError(f"tol must be a finite number > 0, got {tol!r}")
     if max_iter is not None and (not isinstance(max_iter, int) or max_iter < 1):
         raise ProblemError(f"max_iter must be a positive integer, got {max_iter!r}")

@@ -7,6 +7,7 @@ states its capabilities as data.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 from collections.abc import Callable
@@ -112,6 +113,14 @@ class SolverInfo:
     description : str
     probe : callable, optional
         Returns ``None`` when usable, else the reason it is not (e.g. no licence).
+    options : dict
+        Fixed keyword arguments given to the solve function (e.g. which
+        qpsolvers backend a ``qp:<name>`` entry drives).
+    linear_cones_only : bool
+        The backend takes only linear cones (a QP): 2D and frictionless
+        problems, or 3D friction through a faceted cone (option ``facets``).
+    first_order : bool
+        A first-order method: its attainable accuracy is limited.
     """
 
     name: str
@@ -124,15 +133,14 @@ class SolverInfo:
     requires: tuple[str, ...] = ()
     description: str = ""
     probe: Callable[[], str | None] | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+    linear_cones_only: bool = False
+    first_order: bool = False
 
     def unavailable_reason(self) -> str | None:
         """Why the backend cannot be used here, or ``None`` if it can."""
         for module in self.requires:
-            try:
-                found = importlib.util.find_spec(module) is not None
-            except (ImportError, ValueError):
-                found = False
-            if not found:
+            if not _installed(module):
                 return f"Python package '{module}' is not installed"
         if self.probe is not None:
             return self.probe()
@@ -142,3 +150,12 @@ class SolverInfo:
         module, _, function = self.entry.partition(":")
         solve: SolveFunction = getattr(importlib.import_module(module), function)
         return solve
+
+
+@functools.cache
+def _installed(module: str) -> bool:
+    """Whether ``module`` can be imported, found without importing it."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False

@@ -1,28 +1,30 @@
-"""The velocity-based primal (COCD) solved by Clarabel's interior point.
+"""Clarabel's interior point on the velocity-based primal (COCD) and on the force-based dual.
 
-The problem goes to Clarabel's own Python API as
-``min 1/2 x'Px + q'x  s.t.  A x + s = b,  s in K`` (see
-:meth:`cocd.problem.ConicProblem.primal_conic_form`): nonnegative cones in 2D and
-for frictionless scenes, one second-order cone of dimension 3 per contact in 3D.
-Impulses are recovered from Clarabel's dual variables ``z``.
+``clarabel``: the primal as ``min 1/2 x'Px  s.t.  A x + s = b,  s in K`` in the
+velocity correction (:meth:`cocd.problem.ConicProblem.primal_conic_form`):
+nonnegative cones in 2D and for frictionless scenes, one second-order cone of
+dimension 3 per contact in 3D; impulses from Clarabel's dual variables ``z``.
+
+``clarabel-dual``: the force-based dual ``min 1/2 p'Wp + b'p, p in K``
+(:meth:`cocd.problem.ConicProblem.dual_conic_form`, ``W`` sparse); velocities
+``u = U + M^-1 H'p``.
+
+Both go through Clarabel's own Python API (not cvxpy).
 
 ========================  =====================================================
 cocd                      Clarabel
 ========================  =====================================================
-``tol``                   the target is the framework's ``ccp_residual <= tol``.
-                          Clarabel runs with ``tol_gap_abs = tol_gap_rel =
-                          tol_feas = tol * 1e-2`` (``tol_ktratio = min(1e-6,
-                          that)``). An answer above the target is polished
-                          (:mod:`solvers.polish`, off with ``polish=False``);
-                          if still above, Clarabel solves again with
+``tol``                   the target is the framework's ``ccp_residual <= tol``
+                          (:mod:`solvers.refine`): Clarabel runs with
+                          ``tol_gap_abs = tol_gap_rel = tol_feas = tol * 1e-2``
+                          and ``tol_ktratio = min(1e-6, that)``; an answer above
+                          the target is polished (:mod:`solvers.polish`, off
+                          with ``polish=False``), then solved again with
                           tolerances 100 times tighter, down to 1e-13.
-                          Iterations add up over the solves; ``solve_time``
-                          includes polishing (``extras["attempts"]`` lists
-                          native tol, status, iterations, polished, ccp).
+                          Iterations and times add up over the solves.
 ``status``                ``optimal`` when ``ccp_residual <= tol``,
                           ``inaccurate`` when Clarabel answered but the target
-                          was not reached; otherwise Clarabel's status mapped
-                          by ``STATUS_MAP``
+                          was not reached; otherwise ``STATUS_MAP``
 ``max_iter``              ``max_iter`` per solve (Clarabel's default 200)
 ``time_limit``            ``time_limit``, shared by the solves (seconds)
 ``warm_start``            not supported by Clarabel (an interior point method)
@@ -42,29 +44,23 @@ Polishing fixes the active set such contacts belong to.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import clarabel
 import numpy as np
+import scipy.sparse as sp
 
 from cocd.errors import ProblemError
-from cocd.residuals import ccp_residual
 from solvers.base import Solution, Status
-from solvers.polish import polish_impulses
+from solvers.refine import Attempt, solve_to_target
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-    from cocd.problem import ConicProblem
+    from cocd.problem import ConicProblem, DualConicForm, PrimalConicForm
 
-__all__ = ["STATUS_MAP", "clarabel_solve_problem"]
-
-#: The first solve uses Clarabel tolerances of ``tol * FIRST_TOL_FACTOR``.
-FIRST_TOL_FACTOR = 1e-2
-#: Each further solve tightens them by this factor ...
-TIGHTEN_FACTOR = 1e-2
-#: ... down to this floor.
-SMALLEST_NATIVE_TOL = 1e-13
+__all__ = ["STATUS_MAP", "clarabel_dual_solve_problem", "clarabel_solve_problem"]
 
 STATUS_MAP: dict[str, Status] = {
     "Solved": Status.OPTIMAL,
@@ -81,6 +77,8 @@ STATUS_MAP: dict[str, Status] = {
     "Unsolved": Status.ERROR,
 }
 
+_MAPPED = {"tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio", "time_limit", "max_iter"}
+
 
 def clarabel_solve_problem(
     problem: ConicProblem,
@@ -95,11 +93,76 @@ def clarabel_solve_problem(
     """Solve the COCD primal of ``problem`` with Clarabel (see the module's table)."""
     start = time.perf_counter()
     form = problem.primal_conic_form()
-    cones = [
-        clarabel.NonnegativeConeT(size) if kind == "nonneg" else clarabel.SecondOrderConeT(size)
-        for kind, size in form.cones
-    ]
     polish = bool(options.pop("polish", True))
+    settings = _settings(verbose, max_iter, options)
+    cones = _cones(form.cones)
+    setup_time = time.perf_counter() - start
+
+    def attempt(native_tol: float, time_left: float | None) -> Attempt:
+        sol = _run(form, cones, settings, native_tol, time_left)
+        native = _native(sol)
+        return Attempt(
+            p=form.impulses(np.asarray(sol.z)),
+            u=form.velocity(np.asarray(sol.x)),
+            status=STATUS_MAP.get(native, Status.ERROR),
+            native_status=native,
+            iterations=int(sol.iterations),
+            extras=_extras(sol),
+        )
+
+    return solve_to_target(
+        problem,
+        tol,
+        attempt,
+        solver="clarabel",
+        setup_time=setup_time,
+        time_limit=time_limit,
+        polish=polish,
+    )
+
+
+def clarabel_dual_solve_problem(
+    problem: ConicProblem,
+    *,
+    tol: float = 1e-8,
+    warm_start: NDArray[np.float64] | None = None,
+    max_iter: int | None = None,
+    time_limit: float | None = None,
+    verbose: bool = False,
+    **options: Any,
+) -> Solution:
+    """Solve the force-based dual of ``problem`` with Clarabel (see the module's table)."""
+    start = time.perf_counter()
+    form = problem.dual_conic_form()
+    polish = bool(options.pop("polish", True))
+    settings = _settings(verbose, max_iter, options)
+    cones = _cones(form.cones)
+    setup_time = time.perf_counter() - start
+
+    def attempt(native_tol: float, time_left: float | None) -> Attempt:
+        sol = _run(form, cones, settings, native_tol, time_left)
+        native = _native(sol)
+        return Attempt(
+            p=form.impulses(np.asarray(sol.x)),
+            u=None,
+            status=STATUS_MAP.get(native, Status.ERROR),
+            native_status=native,
+            iterations=int(sol.iterations),
+            extras=_extras(sol),
+        )
+
+    return solve_to_target(
+        problem,
+        tol,
+        attempt,
+        solver="clarabel-dual",
+        setup_time=setup_time,
+        time_limit=time_limit,
+        polish=polish,
+    )
+
+
+def _settings(verbose: bool, max_iter: int | None, options: dict[str, Any]) -> Any:
     settings = clarabel.DefaultSettings()
     for key, value in options.items():
         if key.startswith("_") or not hasattr(settings, key) or key in _MAPPED:
@@ -111,81 +174,44 @@ def clarabel_solve_problem(
     settings.verbose = verbose
     if max_iter is not None:
         settings.max_iter = max_iter
-    setup_time = time.perf_counter() - start
-
-    solve_time = 0.0
-    polish_time = 0.0
-    iterations = 0
-    native_tol = max(tol * FIRST_TOL_FACTOR, SMALLEST_NATIVE_TOL)
-    attempts = []
-    while True:
-        _set_tolerances(settings, native_tol)
-        if time_limit is not None:
-            settings.time_limit = max(time_limit - solve_time, 1e-3)
-        begin = time.perf_counter()
-        solver = clarabel.DefaultSolver(form.P, form.q, form.A, form.b, cones, settings)
-        sol = solver.solve()
-        solve_time += time.perf_counter() - begin
-        iterations += int(sol.iterations)
-        native = str(sol.status).split(".")[-1]
-        status = STATUS_MAP.get(native, Status.ERROR)
-        p = form.impulses(np.asarray(sol.z))
-        ccp = ccp_residual(problem, p) if status in _ANSWERED else float("inf")
-        polished = False
-        if polish and tol < ccp < float("inf"):
-            begin = time.perf_counter()
-            p, info = polish_impulses(problem, p, target=tol)
-            polish_time += time.perf_counter() - begin
-            polished = info["accepted"] > 0
-            ccp = info["ccp_after"]
-        attempts.append((native_tol, native, int(sol.iterations), polished, ccp))
-        if ccp <= tol or status not in _ANSWERED or native_tol <= SMALLEST_NATIVE_TOL:
-            break
-        if time_limit is not None and solve_time >= time_limit:
-            status = Status.TIME_LIMIT
-            break
-        native_tol = max(native_tol * TIGHTEN_FACTOR, SMALLEST_NATIVE_TOL)
-
-    if status in _ANSWERED:
-        status = Status.OPTIMAL if ccp <= tol else Status.INACCURATE
-    # A polished p no longer matches Clarabel's x: report the velocity it implies.
-    u = problem.velocity(p) if any(a[3] for a in attempts) else form.velocity(np.asarray(sol.x))
-    return Solution(
-        u=u,
-        p=p,
-        status=status,
-        iterations=iterations,
-        setup_time=setup_time,
-        solve_time=solve_time + polish_time,
-        solver="clarabel",
-        extras={
-            "native_status": native,
-            "native_tol": native_tol,
-            "solves": len(attempts),
-            "attempts": attempts,
-            "polish_time": polish_time,
-            "objective": float(sol.obj_val),
-            "objective_dual": float(sol.obj_val_dual),
-            "r_prim": float(sol.r_prim),
-            "r_dual": float(sol.r_dual),
-        },
-    )
+    return settings
 
 
-_MAPPED = {
-    "tol_gap_abs",
-    "tol_gap_rel",
-    "tol_feas",
-    "tol_ktratio",
-    "time_limit",
-    "max_iter",
-    "verbose",
-}
-_ANSWERED = (Status.OPTIMAL, Status.INACCURATE)
+def _cones(spec: Sequence[tuple[str, int]]) -> list[Any]:
+    make = {
+        "zero": clarabel.ZeroConeT,
+        "nonneg": clarabel.NonnegativeConeT,
+        "soc": clarabel.SecondOrderConeT,
+    }
+    return [make[kind](size) for kind, size in spec]
 
 
-def _set_tolerances(settings: Any, native_tol: float) -> None:
+def _run(
+    form: PrimalConicForm | DualConicForm,
+    cones: list[Any],
+    settings: Any,
+    native_tol: float,
+    time_left: float | None,
+) -> Any:
     settings.tol_gap_abs = native_tol
     settings.tol_gap_rel = native_tol
     settings.tol_feas = native_tol
     settings.tol_ktratio = min(1e-6, native_tol)
+    if time_left is not None:
+        settings.time_limit = time_left
+    # Clarabel reads the upper triangle of P.
+    P = sp.triu(form.P, format="csc")
+    return clarabel.DefaultSolver(P, form.q, form.A, form.b, cones, settings).solve()
+
+
+def _native(sol: Any) -> str:
+    return str(sol.status).split(".")[-1]
+
+
+def _extras(sol: Any) -> dict[str, Any]:
+    return {
+        "objective": float(sol.obj_val),
+        "objective_dual": float(sol.obj_val_dual),
+        "r_prim": float(sol.r_prim),
+        "r_dual": float(sol.r_dual),
+    }

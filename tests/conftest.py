@@ -1,9 +1,12 @@
 """Shared fixtures.
 
 Every solve made in the test suite goes through :func:`checked_solve`, which
-asserts that the impulses lie in their Coulomb cones and that the step's
-``ccp_residual`` is at most ``10 tol`` (unless a test marks itself
-``unchecked_solutions``, e.g. to provoke a failure).
+asserts that the impulses lie in their Coulomb cones and, for every answer a
+backend reports ``optimal``, that its ``ccp_residual`` is at most ``10 tol``
+(unless a test marks itself ``unchecked_solutions``, e.g. to provoke a
+failure). ``inaccurate`` answers, and faceted approximations (which solve
+another problem, ``extras["approximation"]``), are checked for cone membership
+only; their accuracy is asserted by the tests that make them.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ def assert_answer_ok(problem, solution, tol):
         pt = np.linalg.norm(p[:, 1:], axis=1)
         excess = pt - problem.mu * p[:, 0] * (1.0 + CONE_SLACK)
         assert np.all(excess <= 0.0), f"impulse outside its Coulomb cone by {excess.max():g}"
+    if solution.status != "optimal" or "approximation" in solution.extras:
+        return
     r = ccp_residual(problem, p)
     assert r <= 10 * tol, f"{solution.solver}: ccp_residual {r:.3g} > 10 tol = {10 * tol:g}"
 
