@@ -14,6 +14,11 @@ is against ``clarabel`` at tol 1e-10, relative to ``max(||u_ref||, ||U||)``.
 3D friction is offered to the QP backends as an 8-facet pyramid (marked
 ``facets=8``: an approximation, whose residuals show its error).
 
+``solves`` counts the native solves made to reach ``ccp_residual <= tol`` and
+``polished`` says whether the active-set polish (:mod:`solvers.polish`) was
+accepted, i.e. whether the final accuracy is the polish's rather than the
+backend's own. Failed rows carry no residuals.
+
 Writes ``<out>/backends.csv`` and ``<out>/backends.md``.
 """
 
@@ -52,6 +57,8 @@ COLUMNS = [
     "ccp_residual",
     "coulomb_residual",
     "u_error",
+    "solves",
+    "polished",
     "note",
 ]
 
@@ -98,7 +105,9 @@ def _child(problem_path: str, name: str, tol: float, time_limit: float, memory_g
                 sol.iterations,
                 sol.setup_time,
                 sol.solve_time,
-                dict(sol.extras).get("approximation", ""),
+                sol.extras.get("approximation", ""),
+                len(sol.extras.get("attempts", [])),
+                any(a[3] for a in sol.extras.get("attempts", [])),
             )
         )
     except MemoryError:
@@ -138,18 +147,24 @@ def run_backend(problem_path, problem, name, tol, time_limit, memory_gb, ref_u):
         }
     if result[0] == "error":
         return {**row, "status": "error", "note": result[1]}
-    _, u, p, status, iterations, setup, solve, approximation = result
+    _, u, p, status, iterations, setup, solve, approximation, solves, polished = result
+    row.update(
+        status=status,
+        iterations=iterations,
+        setup_s=setup,
+        solve_s=solve,
+        solves=solves,
+        polished=polished,
+        note=approximation,
+    )
+    if status not in ("optimal", "inaccurate"):
+        return row  # no answer: no residuals
     scale = max(np.linalg.norm(ref_u), np.linalg.norm(problem.U))
     return {
         **row,
-        "status": status,
-        "iterations": iterations,
-        "setup_s": setup,
-        "solve_s": solve,
         "ccp_residual": ccp_residual(problem, p),
         "coulomb_residual": coulomb_residual(problem, p),
         "u_error": float(np.linalg.norm(u - ref_u) / scale),
-        "note": approximation,
     }
 
 
@@ -164,6 +179,9 @@ def main() -> None:
     parser.add_argument("--out", default="results")
     args = parser.parse_args()
 
+    # Dense BLAS paths (proxqp, daqp, ...) oversubscribe a small machine with one
+    # thread per core on top of the solver's own; pin them, and say so below.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     names = args.solvers.split(",") if args.solvers else solvers.available()
     rows = []
     for label, dim, n, steps in (("column-2d", 2, args.n2d, 30), ("box-3d", 3, args.n3d, 20)):

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cocd.errors import ProblemError, SolverError, SolverNotFound
+from cocd.errors import CocdError, ProblemError, SolverError, SolverNotFound
 from solvers.base import Solution, SolverInfo, Status
 from solvers.registry import available, get, register, registered, resolve, unavailable
 
@@ -136,7 +136,7 @@ def solve(
             verbose=verbose,
             **options,
         )
-    except (SolverError, ProblemError, TypeError):
+    except (CocdError, TypeError):
         raise
     except Exception as exc:
         raise SolverError(

@@ -139,6 +139,47 @@ def _builtin() -> list[SolverInfo]:
             description="Force-based dual by Mosek's interior point.",
         ),
     ]
+    infos += [
+        SolverInfo(
+            name="pgs",
+            entry="solvers.pgs_:pgs_solve_problem",
+            formulation="ccp",
+            requires=("numba",),
+            warm_start=True,
+            first_order=True,
+            description="Projected Gauss-Seidel on the cone complementarity problem.",
+        ),
+        SolverInfo(
+            name="apgd",
+            entry="solvers.apgd_:apgd_solve_problem",
+            formulation="dual",
+            requires=("numba",),
+            warm_start=True,
+            first_order=True,
+            description="Accelerated projected gradient descent (Nesterov, restart) on the dual.",
+        ),
+        SolverInfo(
+            name="nscd",
+            entry="solvers.nscd_:nscd_solve_problem",
+            formulation="coulomb",
+            convex=False,
+            requires=("numba",),
+            warm_start=True,
+            first_order=True,
+            description="Non-convex Coulomb law (NSCD): Gauss-Seidel with an exact local solver.",
+        ),
+        SolverInfo(
+            name="fp",
+            entry="solvers.fixed_point_:fp_solve_problem",
+            formulation="coulomb",
+            convex=False,
+            warm_start=True,
+            description=(
+                "Non-convex Coulomb law as a sequence of convex problems: fp:<backend> "
+                "(bare fp: fp:clarabel-dual)."
+            ),
+        ),
+    ]
     for qp, module in QP_SOLVERS.items():
         infos.append(
             SolverInfo(
@@ -244,7 +285,12 @@ def _names() -> str:
 
 
 def _split(name: str, infos: dict[str, SolverInfo]) -> tuple[str, dict[str, Any]]:
-    """Split ``base:key=value:...`` into the longest registered base and its options."""
+    """Split ``base:key=value:...`` into the longest registered base and its options.
+
+    ``fp:<backend>`` is the fixed-point family: base ``fp``, option ``inner``.
+    """
+    if name.startswith("fp:") and "fp" in infos and len(name) > 3:
+        return "fp", {"inner": name[3:]}
     parts = name.split(":")
     for cut in range(len(parts), 0, -1):
         base = ":".join(parts[:cut])

@@ -112,6 +112,8 @@ def test_backend_agrees_with_clarabel(backend, problem_name, problems, reference
     if reason is not None:
         pytest.skip(f"{backend} unavailable: {reason}")
     info = solvers.get(backend)
+    if not info.convex:
+        pytest.skip(f"{backend} solves the non-convex Coulomb law, not this convex problem")
     problem = problems(problem_name)
     if info.linear_cones_only and not problem.is_qp:
         pytest.skip(f"{backend} takes linear cones only (faceted cones: test_qp.py)")
@@ -154,6 +156,8 @@ def test_native_impulses_without_polish(backend, problem_name, problems, referen
     if reason is not None:
         pytest.skip(f"{backend} unavailable: {reason}")
     info = solvers.get(backend)
+    if not info.convex:
+        pytest.skip(f"{backend} solves the non-convex Coulomb law")
     problem = problems(problem_name)
     if info.linear_cones_only and not problem.is_qp:
         pytest.skip(f"{backend} takes linear cones only")

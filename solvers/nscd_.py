@@ -1,0 +1,197 @@
+"""NSCD: the non-convex Signorini-Coulomb law by non-linear Gauss-Seidel (as in LMGC90).
+
+The problem is the step problem of :class:`~cocd.problem.ConicProblem` with the
+unconvexified law (DESIGN.md section 1): ``w = W p + b``, De Saxcé's
+``ŵ = w + (mu |w_T|, 0)``, ``K ∋ p ⊥ ŵ ∈ K*``. It differs from the convex problem
+(COCD, the CCP) only at sliding contacts, where it keeps ``w_N = 0`` instead of
+``w_N = mu |w_T|``.
+
+Method (Jean and Moreau's non-smooth contact dynamics): sweep over the contacts; at
+contact ``a`` freeze the others, ``r_a = (W p + b)_a - W_aa p_a``, and replace ``p_a``
+by the exact solution of the one-contact law with block ``W_aa``
+(:func:`solvers._nscd_kernels.local_solve`: separation, stick and sliding branches
+in closed form in 2D; in 3D the sliding branch solves for the slip angle by Newton,
+falling back on the roots of a quartic that gives every candidate angle at once).
+The velocity ``v = U + M^-1 H'p`` is kept up to date after every contact,
+matrix-free: each update touches the nonzeros of ``H_a``.
+Only the diagonal blocks ``W_aa`` are formed (from ``H`` and ``M``, once). Sweeps
+go forward over the contacts (``symmetric=True`` alternates forward and backward:
+about twice as many sweeps on columns, heaps and stacks).
+
+The law is not monotone: Gauss-Seidel is not guaranteed to converge, and the
+solution need not be unique (velocities usually are for a single contact or a
+chain). The best answer seen (least ``coulomb_residual``) is returned. On
+hyperstatic 3D packings Gauss-Seidel can sit on a plateau (``coulomb_residual``
+about 1e-7 for tens of thousands of sweeps) while the impulses drift towards a
+different set of sliding contacts: ask for ``tol`` around 1e-6 there, or give a
+``time_limit``.
+
+========================  =====================================================
+cocd                      NSCD
+========================  =====================================================
+``tol``                   stop when ``coulomb_residual(problem, p) <= tol``
+                          (:func:`cocd.residuals.coulomb_residual`), tested
+                          after the first sweep and then every
+                          ``check_every`` sweeps (default 4)
+``status``                ``optimal`` when the target is met, ``max_iter`` or
+                          ``time_limit`` otherwise (never an exception); the
+                          impulses are then the best seen
+``max_iter``              sweeps (default 20000)
+``time_limit``            wall-clock seconds, tested between sweeps
+``warm_start``            impulses ``(nc, m)``, projected on their cones
+``verbose``               prints the residual at every test
+``**options``             ``relax`` (default 1.0: ``p_a <- relax p_local +
+                          (1 - relax) p_a``), ``symmetric`` (default False),
+                          ``check_every`` (default 4)
+========================  =====================================================
+
+``iterations`` counts sweeps. ``extras``: ``history`` (``(sweep,
+coulomb_residual)`` at every test), ``coulomb_residual`` of the answer, ``dp_max``
+(largest impulse change in the last sweep) and ``branches`` (how many contacts
+ended separated, sticking and sliding).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cocd.cones import project_coulomb
+from cocd.errors import ProblemError
+from cocd.residuals import coulomb_residual
+from solvers._nscd_kernels import delassus_blocks, nscd_sweeps
+from solvers.base import Solution, Status
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from cocd.problem import ConicProblem
+
+__all__ = ["DEFAULT_MAX_SWEEPS", "nscd_solve_problem"]
+
+DEFAULT_MAX_SWEEPS = 20000
+_OPTIONS = {"relax", "symmetric", "check_every"}
+
+
+def nscd_solve_problem(
+    problem: ConicProblem,
+    *,
+    tol: float = 1e-8,
+    warm_start: NDArray[np.float64] | None = None,
+    max_iter: int | None = None,
+    time_limit: float | None = None,
+    verbose: bool = False,
+    **options: Any,
+) -> Solution:
+    """Solve the non-convex Coulomb law of ``problem`` by NSCD (see the module's table)."""
+    unknown = set(options) - _OPTIONS
+    if unknown:
+        raise ProblemError(
+            f"nscd has no option {sorted(unknown)[0]!r}; its options are {sorted(_OPTIONS)}"
+        )
+    relax = float(options.get("relax", 1.0))
+    if not 0.0 < relax <= 2.0:
+        raise ProblemError(f"nscd: relax must be in (0, 2], got {relax}")
+    symmetric = bool(options.get("symmetric", False))
+    check_every = options.get("check_every", 4)
+    if not isinstance(check_every, int) or check_every < 1:
+        raise ProblemError(f"nscd: check_every must be a positive integer, got {check_every!r}")
+    max_sweeps = DEFAULT_MAX_SWEEPS if max_iter is None else int(max_iter)
+
+    start = time.perf_counter()
+    nc, m = problem.nc, problem.contact_dim
+    H = problem.H
+    if not H.has_sorted_indices:
+        H = H.sorted_indices()
+    indptr = H.indptr.astype(np.int64)
+    indices = H.indices.astype(np.int64)
+    data = H.data
+    inv_mass = 1.0 / problem.mass
+    offset = np.ascontiguousarray(problem.offset)
+    mu = np.ascontiguousarray(problem.mu)
+    W = delassus_blocks(indptr, indices, data, inv_mass, nc, m)
+    Winv = _inverses(W)
+    if warm_start is None:
+        p = np.zeros((nc, m))
+    else:
+        p = project_coulomb(np.asarray(warm_start, dtype=np.float64).reshape(nc, m), mu)
+    p = np.ascontiguousarray(p)
+    v = problem.velocity(p)
+    setup_time = time.perf_counter() - start
+
+    start = time.perf_counter()
+    history: list[tuple[int, float]] = []
+    best_res = coulomb_residual(problem, p)
+    best_p = p.copy()
+    history.append((0, best_res))
+    sweeps = 0
+    dp_max = 0.0
+    status = Status.OPTIMAL if best_res <= tol else Status.MAX_ITER
+    while status != Status.OPTIMAL and sweeps < max_sweeps:
+        # The first test after one sweep: a single contact, or a warm start that
+        # was nearly right, needs no more.
+        chunk = 1 if sweeps == 0 else min(check_every, max_sweeps - sweeps)
+        dp_max = nscd_sweeps(
+            indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v,
+            chunk, symmetric, relax,
+        )  # fmt: skip
+        sweeps += chunk
+        # Rounding accumulates in v over many updates: restart it from p.
+        v = problem.velocity(p)
+        res = coulomb_residual(problem, p)
+        history.append((sweeps, res))
+        if verbose:
+            print(f"nscd: sweep {sweeps:6d}  coulomb_residual {res:.3e}  dp_max {dp_max:.3e}")
+        if res < best_res or not np.isfinite(best_res):
+            best_res, best_p = res, p.copy()
+        if best_res <= tol:
+            status = Status.OPTIMAL
+        elif time_limit is not None and time.perf_counter() - start >= time_limit:
+            status = Status.TIME_LIMIT
+            break
+    solve_time = time.perf_counter() - start
+
+    return Solution(
+        u=problem.velocity(best_p),
+        p=best_p,
+        status=status,
+        iterations=sweeps,
+        setup_time=setup_time,
+        solve_time=solve_time,
+        solver="nscd",
+        extras={
+            "native_status": status.value,
+            "coulomb_residual": best_res,
+            "history": history,
+            "dp_max": dp_max,
+            "branches": _branches(problem, best_p),
+        },
+    )
+
+
+def _inverses(W: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverses of the blocks ``(nc, m, m)``; a singular block (a contact between
+    bodies without unknowns) gets zeros, and its contact stays separated."""
+    det = np.linalg.det(W)
+    scale = np.einsum("aii->a", W) ** W.shape[1]
+    ok = det > 1e-14 * scale
+    out = np.zeros_like(W)
+    if np.any(ok):
+        out[ok] = np.linalg.inv(W[ok])
+    return out
+
+
+def _branches(problem: ConicProblem, p: NDArray[np.float64]) -> dict[str, int]:
+    """How many contacts are separated (``p = 0``), sticking (inside the cone) and
+    sliding (on its boundary, ``p_N > 0``)."""
+    pn = p[:, 0]
+    pt = np.linalg.norm(p[:, 1:], axis=1) if p.shape[1] > 1 else np.zeros_like(pn)
+    separated = pn <= 0.0
+    slide = ~separated & (pt >= problem.mu * pn * (1.0 - 1e-9)) & (p.shape[1] > 1)
+    return {
+        "separated": int(separated.sum()),
+        "stick": int((~separated & ~slide).sum()),
+        "slide": int(slide.sum()),
+    }
