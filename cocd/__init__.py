@@ -5,7 +5,7 @@ The data flow is one way::
     Scene -> ContactSet -> ConicProblem -> solvers.solve -> Solution -> Stepper -> records
 """
 
-from cocd.builders import box_3d, column_2d, stack
+from cocd.builders import HARD_CASES, box_3d, column_2d, column_collapse, stack, static_box
 from cocd.contacts import ContactSet, contact_jacobian, detect_contacts
 from cocd.errors import (
     CocdError,
@@ -15,7 +15,22 @@ from cocd.errors import (
     SolverError,
     SolverNotFound,
 )
-from cocd.measure import kinetic_energy, potential_energy
+from cocd.measure import (
+    MassProfile,
+    bed_energy_ratio,
+    front_position,
+    granular_volume,
+    kinetic_energy,
+    main_mass,
+    mass_profile,
+    potential_energy,
+    relative_runout,
+    relative_volume_variation,
+    runout,
+    static_flowing_interface,
+    velocity_profile,
+)
+from cocd.packing import rain_deposition
 from cocd.problem import ConicProblem, PrimalConicForm, assemble
 from cocd.residuals import (
     Residuals,
@@ -31,9 +46,11 @@ from cocd.stepper import Stepper, StepRecord
 __version__ = "0.1.0"
 
 __all__ = [
+    "HARD_CASES",
     "CocdError",
     "ConicProblem",
     "ContactSet",
+    "MassProfile",
     "OverlapError",
     "PrimalConicForm",
     "ProblemError",
@@ -46,16 +63,29 @@ __all__ = [
     "Stepper",
     "Wall",
     "assemble",
+    "bed_energy_ratio",
     "box_3d",
     "ccp_residual",
     "column_2d",
+    "column_collapse",
     "contact_jacobian",
     "coulomb_residual",
     "detect_contacts",
     "dynamics_residual",
+    "front_position",
+    "granular_volume",
     "kinetic_energy",
+    "main_mass",
+    "mass_profile",
     "potential_energy",
     "project_coulomb",
+    "rain_deposition",
+    "relative_runout",
+    "relative_volume_variation",
     "residuals",
+    "runout",
     "stack",
+    "static_box",
+    "static_flowing_interface",
+    "velocity_profile",
 ]
