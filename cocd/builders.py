@@ -460,10 +460,7 @@ def grain_groups(scene: Scene) -> dict[str, slice]:
 
     Scenes not made by :func:`column_collapse` have one group, ``"all"``.
     """
-    groups = scene.__dict__.get("groups")
-    if isinstance(groups, dict):
-        return dict(groups)
-    return {"all": slice(0, scene.n_grains)}
+    return dict(scene.groups)
 
 
 # -- hard cases --------------------------------------------------------------
@@ -875,5 +872,4 @@ def _floor(dim: int) -> Wall:
 
 
 def _set_groups(scene: Scene, groups: dict[str, slice]) -> None:
-    # Kept in the scene's __dict__ so that Scene.copy() carries it along.
-    scene.__dict__["groups"] = dict(groups)
+    scene.groups = dict(groups)

@@ -183,6 +183,8 @@ class Scene:
         self.mu = _friction(mu, "mu")
         self.mu_wall = self.mu if mu_wall is None else _friction(mu_wall, "mu_wall")
         self.time = 0.0
+        #: Named index ranges of grains set by builders (e.g. bed, layer, column).
+        self.groups: dict[str, slice] = {"all": slice(0, n)}
 
     # -- derived quantities -------------------------------------------------
     @property
@@ -229,7 +231,10 @@ class Scene:
         """An independent copy (arrays copied, walls shared: they are immutable)."""
         other = Scene.__new__(Scene)
         other.__dict__.update(
-            {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()}
+            {
+                k: (v.copy() if isinstance(v, np.ndarray | dict) else v)
+                for k, v in self.__dict__.items()
+            }
         )
         return other
 
