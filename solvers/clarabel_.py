@@ -44,7 +44,7 @@ Polishing fixes the active set such contacts belong to.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import clarabel
@@ -93,31 +93,18 @@ def clarabel_solve_problem(
     """Solve the COCD primal of ``problem`` with Clarabel (see the module's table)."""
     start = time.perf_counter()
     form = problem.primal_conic_form()
-    polish = bool(options.pop("polish", True))
-    settings = _settings(verbose, max_iter, options)
-    cones = _cones(form.cones)
-    setup_time = time.perf_counter() - start
-
-    def attempt(native_tol: float, time_left: float | None) -> Attempt:
-        sol = _run(form, cones, settings, native_tol, time_left)
-        native = _native(sol)
-        return Attempt(
-            p=form.impulses(np.asarray(sol.z)),
-            u=form.velocity(np.asarray(sol.x)),
-            status=STATUS_MAP.get(native, Status.ERROR),
-            native_status=native,
-            iterations=int(sol.iterations),
-            extras=_extras(sol),
-        )
-
-    return solve_to_target(
+    return _solve(
         problem,
+        form,
+        # Impulses are the duals z of the contact rows; the velocity is the primal x.
+        lambda sol: (form.impulses(np.asarray(sol.z)), form.velocity(np.asarray(sol.x))),
+        "clarabel",
+        start,
         tol,
-        attempt,
-        solver="clarabel",
-        setup_time=setup_time,
-        time_limit=time_limit,
-        polish=polish,
+        max_iter,
+        time_limit,
+        verbose,
+        options,
     )
 
 
@@ -134,6 +121,33 @@ def clarabel_dual_solve_problem(
     """Solve the force-based dual of ``problem`` with Clarabel (see the module's table)."""
     start = time.perf_counter()
     form = problem.dual_conic_form()
+    return _solve(
+        problem,
+        form,
+        # Impulses are the primal x; the velocity follows from them.
+        lambda sol: (form.impulses(np.asarray(sol.x)), None),
+        "clarabel-dual",
+        start,
+        tol,
+        max_iter,
+        time_limit,
+        verbose,
+        options,
+    )
+
+
+def _solve(
+    problem: ConicProblem,
+    form: PrimalConicForm | DualConicForm,
+    answer: Callable[[Any], tuple[NDArray[np.float64], NDArray[np.float64] | None]],
+    name: str,
+    start: float,
+    tol: float,
+    max_iter: int | None,
+    time_limit: float | None,
+    verbose: bool,
+    options: dict[str, Any],
+) -> Solution:
     polish = bool(options.pop("polish", True))
     settings = _settings(verbose, max_iter, options)
     cones = _cones(form.cones)
@@ -142,9 +156,10 @@ def clarabel_dual_solve_problem(
     def attempt(native_tol: float, time_left: float | None) -> Attempt:
         sol = _run(form, cones, settings, native_tol, time_left)
         native = _native(sol)
+        p, u = answer(sol)
         return Attempt(
-            p=form.impulses(np.asarray(sol.x)),
-            u=None,
+            p=p,
+            u=u,
             status=STATUS_MAP.get(native, Status.ERROR),
             native_status=native,
             iterations=int(sol.iterations),
@@ -155,7 +170,7 @@ def clarabel_dual_solve_problem(
         problem,
         tol,
         attempt,
-        solver="clarabel-dual",
+        solver=name,
         setup_time=setup_time,
         time_limit=time_limit,
         polish=polish,
