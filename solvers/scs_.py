@@ -137,26 +137,21 @@ def scs_solve_problem(
     """Solve the COCD primal of ``problem`` with SCS (see the module's table)."""
     start = time.perf_counter()
     form = problem.primal_conic_form()
-    polish = bool(options.pop("polish", True))
-    settings = _settings(verbose, max_iter, options)
-    data, cone = _data(form)
     first = None if warm_start is None else _primal_start(form, warm_start)
-    setup_time = time.perf_counter() - start
-    runner = _Runner(data, cone, settings, first)
-
-    def attempt(native_tol: float, time_left: float | None) -> Attempt:
-        sol = runner.run(native_tol, time_left)
-        info = sol["info"]
-        return Attempt(
-            p=project_coulomb(form.impulses(sol["y"]), problem.mu),
-            u=form.velocity(sol["x"]),
-            status=STATUS_MAP.get(int(info["status_val"]), Status.ERROR),
-            native_status=str(info["status"]),
-            iterations=int(info["iter"]),
-            extras=_extras(info),
-        )
-
-    return _solve(problem, tol, attempt, "scs", setup_time, time_limit, polish)
+    # Impulses are the duals y of the contact rows; the velocity is the primal x.
+    return _run_form(
+        problem,
+        form,
+        lambda sol: (form.impulses(sol["y"]), form.velocity(sol["x"])),
+        first,
+        "scs",
+        start,
+        tol,
+        max_iter,
+        time_limit,
+        verbose,
+        options,
+    )
 
 
 def scs_dual_solve_problem(
@@ -172,26 +167,57 @@ def scs_dual_solve_problem(
     """Solve the force-based dual of ``problem`` with SCS (see the module's table)."""
     start = time.perf_counter()
     form = problem.dual_conic_form()
+    first = None if warm_start is None else _dual_start(form, warm_start)
+    # Impulses are the primal x; the velocity follows from them.
+    return _run_form(
+        problem,
+        form,
+        lambda sol: (form.impulses(sol["x"]), None),
+        first,
+        "scs-dual",
+        start,
+        tol,
+        max_iter,
+        time_limit,
+        verbose,
+        options,
+    )
+
+
+def _run_form(
+    problem: ConicProblem,
+    form: Any,
+    answer: Any,
+    first: Start | None,
+    name: str,
+    start: float,
+    tol: float,
+    max_iter: int | None,
+    time_limit: float | None,
+    verbose: bool,
+    options: dict[str, Any],
+) -> Solution:
+    """The set-up and solve shared by the primal and the dual."""
     polish = bool(options.pop("polish", True))
     settings = _settings(verbose, max_iter, options)
     data, cone = _data(form)
-    first = None if warm_start is None else _dual_start(form, warm_start)
     setup_time = time.perf_counter() - start
     runner = _Runner(data, cone, settings, first)
 
     def attempt(native_tol: float, time_left: float | None) -> Attempt:
         sol = runner.run(native_tol, time_left)
         info = sol["info"]
+        p, u = answer(sol)
         return Attempt(
-            p=project_coulomb(form.impulses(sol["x"]), problem.mu),
-            u=None,
+            p=project_coulomb(p, problem.mu),
+            u=u,
             status=STATUS_MAP.get(int(info["status_val"]), Status.ERROR),
             native_status=str(info["status"]),
             iterations=int(info["iter"]),
             extras=_extras(info),
         )
 
-    return _solve(problem, tol, attempt, "scs-dual", setup_time, time_limit, polish)
+    return _solve(problem, tol, attempt, name, setup_time, time_limit, polish)
 
 
 def _solve(
