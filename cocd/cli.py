@@ -1,7 +1,8 @@
 """The ``cocd`` command.
 
 ``cocd run`` (also ``python -m cocd``) runs a small 2D column collapse and
-prints per-step statistics; ``cocd solvers`` lists the backends.
+prints per-step statistics; ``cocd solvers`` lists the backends; ``cocd bench``
+runs the benchmark harness (:mod:`cocd.bench`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from rich.console import Console
 from rich.table import Table
 
 import solvers
+from cocd.bench.cli import bench_app
 from cocd.builders import column_2d
 from cocd.errors import CocdError
 from cocd.stepper import Stepper, StepRecord
@@ -23,6 +25,7 @@ app = typer.Typer(
     no_args_is_help=False,
     help="Granular media with hard Coulomb contact, one convex conic problem per step.",
 )
+app.add_typer(bench_app, name="bench")
 console = Console(soft_wrap=True)
 
 

@@ -1,0 +1,192 @@
+"""``cocd bench``: the harness commands.
+
+Each command writes its tables and plots under ``--out`` (default
+``results``) with a ``<name>.meta.json`` recording the command and machine,
+then rebuilds ``<out>/README.md`` from every such record.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cocd.errors import CocdError
+
+bench_app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Compare backends: Table 1, stability, speed against error, hard cases.",
+)
+
+Solvers = Annotated[
+    str | None,
+    typer.Option("--solvers", help="Comma-separated backends (default: the harness's set)."),
+]
+Out = Annotated[Path, typer.Option("--out", help="Output directory.")]
+TimeLimit = Annotated[
+    float, typer.Option("--time-limit", help="Seconds per solve before a backend is stopped.")
+]
+MemoryGb = Annotated[
+    float | None,
+    typer.Option("--memory-gb", help="Memory cap per backend process (GiB; default 3/4 of RAM)."),
+]
+
+
+def _floats(text: str, what: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise CocdError(f"{what} must be comma-separated numbers, got {text!r}") from None
+    if not values or any(not (v > 0) for v in values):
+        raise CocdError(f"{what} must be positive numbers, got {text!r}")
+    return values
+
+
+def _finish(out: Path) -> None:
+    from cocd.bench.report import write_readme
+
+    try:
+        typer.echo(f"wrote {write_readme(out)}")
+    except CocdError as exc:
+        _fail(exc)
+
+
+def _fail(exc: Exception) -> None:
+    typer.echo(f"error: {exc}", err=True)
+    raise typer.Exit(code=2)
+
+
+@bench_app.command()
+def table1(
+    solvers: Solvers = None,
+    scale: Annotated[
+        float,
+        typer.Option("--scale", help="Multiply the seed's grain counts by this (0 < S <= 1)."),
+    ] = 0.1,
+    cases: Annotated[str, typer.Option("--cases", help="Which halves: 2d, 3d or 2d,3d.")] = "2d,3d",
+    steps: Annotated[int, typer.Option("--steps", help="Steps averaged per row.")] = 10,
+    time_limit: TimeLimit = 600.0,
+    memory_gb: MemoryGb = None,
+    out: Out = Path("results"),
+) -> None:
+    """The seed's Table 1: iterations and time per step against N, dt and eps."""
+    from cocd.bench import table1 as mod
+
+    try:
+        mod.run(
+            solvers=solvers,
+            scale=scale,
+            cases=[c.strip() for c in cases.split(",") if c.strip()],
+            steps=steps,
+            time_limit=time_limit,
+            memory_gb=memory_gb,
+            out=out,
+        )
+    except CocdError as exc:
+        _fail(exc)
+    _finish(out)
+
+
+@bench_app.command()
+def stability(
+    solvers: Solvers = None,
+    eps_list: Annotated[
+        str, typer.Option("--eps-list", help="Comma-separated tolerances.")
+    ] = "1e-1,1e-2,1e-3,1e-4,1e-5,1e-6,1e-7,1e-8",
+    n: Annotated[int, typer.Option("--n", help="Spheres in the box.")] = 1000,
+    dim: Annotated[int, typer.Option("--dim", help="2 or 3.")] = 3,
+    t_end: Annotated[float, typer.Option("--t-end", help="Duration in units of sqrt(H/g).")] = 5.0,
+    dt: Annotated[float, typer.Option("--dt", help="Time step (s).")] = 1e-2,
+    threshold: Annotated[
+        float,
+        typer.Option("--threshold", help="At rest while Ek / (Ek + Ep) stays below this."),
+    ] = 1e-6,
+    time_limit: TimeLimit = 600.0,
+    out: Out = Path("results"),
+) -> None:
+    """The seed's Fig. 3: does a box at rest stay at rest, for each solver and eps?"""
+    from cocd.bench import stability as mod
+
+    try:
+        mod.run(
+            solvers=solvers,
+            eps_list=_floats(eps_list, "--eps-list"),
+            n=n,
+            dim=dim,
+            t_end=t_end,
+            dt=dt,
+            threshold=threshold,
+            time_limit=time_limit,
+            out=out,
+        )
+    except CocdError as exc:
+        _fail(exc)
+    _finish(out)
+
+
+@bench_app.command()
+def precision(
+    solvers: Solvers = None,
+    tols: Annotated[
+        str, typer.Option("--tols", help="Comma-separated tolerances swept by each solver.")
+    ] = "1e-2,1e-3,1e-4,1e-5,1e-6,1e-7,1e-8,1e-9",
+    n2d: Annotated[int, typer.Option("--n2d", help="Discs in the 2D column.")] = 2000,
+    n3d: Annotated[int, typer.Option("--n3d", help="Spheres in the 3D box.")] = 1000,
+    time_limit: TimeLimit = 300.0,
+    memory_gb: MemoryGb = None,
+    out: Out = Path("results"),
+) -> None:
+    """Speed against error: work-precision plots, performance profiles, geometric means."""
+    from cocd.bench import precision as mod
+
+    try:
+        mod.run(
+            solvers=solvers,
+            tols=_floats(tols, "--tols"),
+            n2d=n2d,
+            n3d=n3d,
+            time_limit=time_limit,
+            memory_gb=memory_gb,
+            out=out,
+        )
+    except CocdError as exc:
+        _fail(exc)
+    _finish(out)
+
+
+@bench_app.command()
+def hard(
+    solvers: Solvers = None,
+    cases: Annotated[
+        str | None, typer.Option("--cases", help="Comma-separated hard cases (default: all).")
+    ] = None,
+    steps: Annotated[int, typer.Option("--steps", help="Steps per case.")] = 5,
+    tol: Annotated[float, typer.Option("--tol", help="Tolerance asked of every solver.")] = 1e-6,
+    time_limit: TimeLimit = 120.0,
+    memory_gb: MemoryGb = None,
+    out: Out = Path("results"),
+) -> None:
+    """Every solver on every hard case: status, iterations, time, residuals, energy drift."""
+    from cocd.bench import hard as mod
+
+    try:
+        mod.run(
+            solvers=solvers,
+            cases=None if cases is None else [c.strip() for c in cases.split(",") if c.strip()],
+            steps=steps,
+            tol=tol,
+            time_limit=time_limit,
+            memory_gb=memory_gb,
+            out=out,
+        )
+    except CocdError as exc:
+        _fail(exc)
+    _finish(out)
+
+
+@bench_app.command()
+def readme(out: Out = Path("results")) -> None:
+    """Rebuild OUT/README.md from the result files' records."""
+    _finish(out)

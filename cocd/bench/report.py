@@ -1,0 +1,210 @@
+"""Result files with their provenance, and ``results/README.md`` rebuilt from them.
+
+Every harness command writes its tables (CSV and Markdown) and plots (PNG)
+under an output directory, plus ``<name>.meta.json``: the title, the command
+line that made them, the machine (CPU, cores, memory, package versions), the
+time written and a short Markdown summary. :func:`write_readme` rebuilds
+``README.md`` in that directory from every ``*.meta.json`` it finds, adding
+the commentary a person wrote in ``notes/<name>.md`` when there is one, so
+that the README always shows each table and plot with the command and
+machine that made it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import shlex
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cocd.errors import CocdError
+
+__all__ = [
+    "command_line",
+    "machine_info",
+    "machine_line",
+    "write_meta",
+    "write_readme",
+    "write_table",
+]
+
+#: Sections of the README, in this order; other names follow alphabetically.
+ORDER = [
+    "table1",
+    "stability",
+    "precision",
+    "hard",
+    "backends",
+    "iterative",
+    "collapse_2d_slope",
+]
+
+PACKAGES = [
+    "numpy",
+    "scipy",
+    "numba",
+    "clarabel",
+    "scs",
+    "ecos",
+    "cvxpy",
+    "qpsolvers",
+    "osqp",
+    "proxsuite",
+    "piqp",
+    "daqp",
+    "highspy",
+    "quadprog",
+    "mosek",
+]
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU model, cores, memory, OS, Python and the versions of the numerical packages."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    try:
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**30
+    except (ValueError, OSError):
+        memory = float("nan")
+    versions = {}
+    for name in PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "memory_gib": round(memory, 1),
+        "os": f"{platform.system()} {platform.release()}",
+        "python": platform.python_version(),
+        "packages": versions,
+    }
+
+
+def machine_line(info: dict[str, Any] | None = None) -> str:
+    """One line: ``CPU, n cores, m GiB, Python x; package versions``."""
+    info = info or machine_info()
+    versions = ", ".join(f"{k} {v}" for k, v in info["packages"].items())
+    return (
+        f"{info['cpu']}, {info['cores']} cores, {info['memory_gib']:g} GiB, "
+        f"Python {info['python']}; {versions}"
+    )
+
+
+def command_line() -> str:
+    """The command that is running, as a user would type it."""
+    argv = list(sys.argv)
+    prog = Path(argv[0]).name if argv else "python"
+    if prog in ("cocd", "__main__.py"):
+        argv[0] = "cocd"
+    elif argv and argv[0].endswith(".py"):
+        argv = ["python", os.path.relpath(argv[0]), *argv[1:]]
+    return shlex.join(argv)
+
+
+def write_table(
+    out: Path,
+    name: str,
+    table: pd.DataFrame,
+    *,
+    title: str,
+    command: str | None = None,
+    intro: str = "",
+    floatfmt: str = ".3g",
+) -> list[Path]:
+    """Write ``<name>.csv`` and ``<name>.md`` (title, command, machine, table)."""
+    out.mkdir(parents=True, exist_ok=True)
+    command = command or command_line()
+    csv = out / f"{name}.csv"
+    md = out / f"{name}.md"
+    table.to_csv(csv, index=False)
+    with open(md, "w") as f:
+        f.write(f"# {title}\n\n`{command}`\n\nMachine: {machine_line()}\n\n")
+        if intro:
+            f.write(intro.strip() + "\n\n")
+        f.write(table.to_markdown(index=False, floatfmt=floatfmt))
+        f.write("\n")
+    return [csv, md]
+
+
+def write_meta(
+    out: Path,
+    name: str,
+    *,
+    title: str,
+    files: list[Path],
+    summary: str = "",
+    command: str | None = None,
+) -> Path:
+    """Record the provenance of ``files`` in ``<name>.meta.json``."""
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "name": name,
+        "title": title,
+        "command": command or command_line(),
+        "machine": machine_info(),
+        "written": _dt.datetime.now().isoformat(timespec="seconds"),
+        "files": sorted({os.path.relpath(p, out) for p in files}),
+        "summary": summary,
+    }
+    path = out / f"{name}.meta.json"
+    path.write_text(json.dumps(meta, indent=2) + "\n")
+    return path
+
+
+def write_readme(out: Path) -> Path:
+    """Rebuild ``<out>/README.md`` from every ``<out>/*.meta.json``."""
+    if not out.is_dir():
+        raise CocdError(f"results directory {out} does not exist")
+    metas = []
+    for path in out.glob("*.meta.json"):
+        try:
+            metas.append(json.loads(path.read_text()))
+        except (OSError, json.JSONDecodeError):
+            continue
+    rank = {name: k for k, name in enumerate(ORDER)}
+    metas.sort(key=lambda m: (rank.get(m["name"], len(ORDER)), m["name"]))
+    lines = [
+        "# Results",
+        "",
+        "Every file here was written by a command of the repository; this README is",
+        "rebuilt from their `*.meta.json` by `cocd bench readme` (commentary from",
+        "`notes/<name>.md`). All residuals are the framework's (`cocd.residuals`),",
+        "the same for every backend.",
+        "",
+    ]
+    for meta in metas:
+        lines += [f"## {meta['title']}", "", "```bash", meta["command"], "```", ""]
+        lines += [
+            f"Machine: {machine_line(meta['machine'])}. Written {meta['written']}.",
+            "",
+        ]
+        files = meta.get("files", [])
+        lines.append("Files: " + ", ".join(f"[`{f}`]({f})" for f in files) + ".")
+        lines.append("")
+        if meta.get("summary"):
+            lines += [meta["summary"].strip(), ""]
+        for f in files:
+            if f.endswith(".png"):
+                lines += [f"![{f}]({f})", ""]
+        note = out / "notes" / f"{meta['name']}.md"
+        if note.exists():
+            lines += [note.read_text().strip(), ""]
+    readme = out / "README.md"
+    readme.write_text("\n".join(lines).rstrip() + "\n")
+    return readme

@@ -1,0 +1,276 @@
+"""Run one backend on one step problem and turn the outcome into a table row.
+
+Every harness command goes through :func:`solve_row` (in process) or a
+:class:`Worker` (a child process with a wall-clock limit and a memory cap), so
+that all backends are timed by the same clock and judged by the same residuals
+(:mod:`cocd.residuals`), and a backend that crashes, runs out of memory or
+overruns its time is a row saying so, never a crash of the harness.
+
+Row columns (:data:`ROW_COLUMNS`): ``solver``, ``formulation``, ``status``
+(the shared vocabulary of :class:`solvers.Status`, plus ``time_limit`` when the
+child was killed and ``error`` when the backend raised), ``iterations``,
+``setup_s``, ``solve_s`` (the backend's own set-up and solve times),
+``wall_s`` (the whole call, set-up and refinement included), ``ccp_residual``,
+``coulomb_residual``, ``dynamics_residual``, ``u_error``, ``polished``,
+``note``. Rows without an answer carry NaN residuals.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import pickle
+import queue as queue_mod
+import resource
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+import solvers
+from cocd.problem import ConicProblem
+from cocd.residuals import residuals
+
+__all__ = ["ROW_COLUMNS", "Worker", "solve_row", "u_error"]
+
+FloatArray = NDArray[np.float64]
+
+ROW_COLUMNS = [
+    "solver",
+    "formulation",
+    "status",
+    "iterations",
+    "setup_s",
+    "solve_s",
+    "wall_s",
+    "ccp_residual",
+    "coulomb_residual",
+    "dynamics_residual",
+    "u_error",
+    "polished",
+    "note",
+]
+
+
+def u_error(problem: ConicProblem, u: FloatArray, ref_u: FloatArray) -> float:
+    """``||u - u_ref|| / max(||u_ref||, ||U||)``: a velocity error that stays defined at rest."""
+    scale = max(float(np.linalg.norm(ref_u)), float(np.linalg.norm(problem.U)), 1e-300)
+    return float(np.linalg.norm(np.asarray(u) - ref_u) / scale)
+
+
+def solve_row(
+    problem: ConicProblem,
+    solver: str,
+    tol: float,
+    *,
+    warm_start: FloatArray | None = None,
+    time_limit: float | None = None,
+    max_iter: int | None = None,
+    ref_u: FloatArray | None = None,
+    keep_solution: bool = False,
+) -> dict[str, Any]:
+    """Solve ``problem`` with ``solver`` in this process; one row of :data:`ROW_COLUMNS`.
+
+    Exceptions raised by the backend become ``status = "error"`` rows. With
+    ``keep_solution`` the row also holds ``u`` and ``p`` (not table columns).
+    """
+    row: dict[str, Any] = {c: np.nan for c in ROW_COLUMNS}
+    row.update(solver=solver, polished=False, note="")
+    try:
+        row["formulation"] = solvers.get(solver).formulation
+    except Exception as exc:
+        row.update(status="error", note=f"{type(exc).__name__}: {exc}")
+        return row
+    start = time.perf_counter()
+    try:
+        sol = solvers.solve(
+            problem,
+            solver,
+            tol=tol,
+            warm_start=warm_start if solvers.get(solver).warm_start else None,
+            time_limit=time_limit,
+            max_iter=max_iter,
+        )
+    except MemoryError:
+        row.update(status="error", note="out of memory", wall_s=time.perf_counter() - start)
+        return row
+    except Exception as exc:  # a backend failure is a row, not a crash
+        row.update(
+            status="error",
+            note=f"{type(exc).__name__}: {str(exc)[:300]}",
+            wall_s=time.perf_counter() - start,
+        )
+        return row
+    wall = time.perf_counter() - start
+    attempts = sol.extras.get("attempts", [])
+    row.update(
+        status=sol.status.value,
+        iterations=sol.iterations,
+        setup_s=sol.setup_time,
+        solve_s=sol.solve_time,
+        wall_s=wall,
+        polished=bool(any(a[3] for a in attempts)) if attempts else False,
+        note=str(sol.extras.get("approximation", "")),
+    )
+    if sol.found:
+        res = residuals(problem, sol.u, sol.p)
+        row.update(
+            ccp_residual=res.ccp,
+            coulomb_residual=res.coulomb,
+            dynamics_residual=res.dynamics,
+        )
+        if ref_u is not None:
+            row["u_error"] = u_error(problem, sol.u, ref_u)
+    if keep_solution:
+        row["u"], row["p"] = sol.u, sol.p
+    return row
+
+
+def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
+    """Child process: solve jobs until told to stop; problems are cached by path."""
+    if memory_gb is not None:
+        limit = int(memory_gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    cached: tuple[str, ConicProblem] | None = None
+    while True:
+        job = jobs.get()
+        if job is None:
+            return
+        path, kwargs = job
+        try:
+            if cached is None or cached[0] != path:
+                cached = None  # free the previous problem before loading the next
+                with open(path, "rb") as f:
+                    cached = (path, pickle.load(f))
+            answers.put(solve_row(cached[1], **kwargs))
+        except MemoryError:
+            cached = None
+            answers.put({"status": "error", "note": f"out of memory (cap {memory_gb:g} GiB)"})
+        except Exception as exc:
+            answers.put({"status": "error", "note": f"{type(exc).__name__}: {str(exc)[:300]}"})
+
+
+class Worker:
+    """A child process that solves step problems under a wall-clock limit and a memory cap.
+
+    A job that overruns ``1.5 * time_limit + grace`` seconds kills the child,
+    which is restarted for the next job; the row says ``time_limit``. Problems
+    are handed over as pickles on disk (written once per problem by
+    :meth:`solve_row`) and the child keeps the last one loaded.
+
+    Use as a context manager::
+
+        with Worker(memory_gb=12) as worker:
+            row = worker.solve_row(problem, "clarabel", 1e-8, time_limit=60)
+    """
+
+    def __init__(self, memory_gb: float | None = None, grace: float = 30.0) -> None:
+        self.memory_gb = memory_gb
+        self.grace = grace
+        self._ctx = mp.get_context("spawn")
+        self._proc: Any = None
+        self._jobs: Any = None
+        self._answers: Any = None
+        self._dir = tempfile.TemporaryDirectory(prefix="cocd-bench-")
+        self._paths: dict[int, str] = {}
+
+    def __enter__(self) -> Worker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the child and delete the problem files."""
+        if self._proc is not None and self._proc.is_alive():
+            self._jobs.put(None)
+            self._proc.join(timeout=5)
+            if self._proc.is_alive():
+                self._proc.kill()
+                self._proc.join()
+        self._proc = None
+        self._dir.cleanup()
+
+    def _start(self) -> None:
+        self._jobs, self._answers = self._ctx.Queue(), self._ctx.Queue()
+        self._proc = self._ctx.Process(
+            target=_serve, args=(self._jobs, self._answers, self.memory_gb), daemon=True
+        )
+        self._proc.start()
+
+    def _path(self, problem: ConicProblem) -> str:
+        key = id(problem)
+        if key not in self._paths:
+            path = Path(self._dir.name) / f"problem-{len(self._paths)}.pkl"
+            with open(path, "wb") as f:
+                pickle.dump(problem, f, protocol=pickle.HIGHEST_PROTOCOL)
+            self._paths[key] = str(path)
+        return self._paths[key]
+
+    def solve_row(
+        self,
+        problem: ConicProblem,
+        solver: str,
+        tol: float,
+        *,
+        warm_start: FloatArray | None = None,
+        time_limit: float | None = None,
+        max_iter: int | None = None,
+        ref_u: FloatArray | None = None,
+    ) -> dict[str, Any]:
+        """As :func:`solve_row`, in the child process; never raises for a backend failure.
+
+        ``problem`` must stay alive while it is used (it is keyed by identity).
+        """
+        if self._proc is None or not self._proc.is_alive():
+            self._start()
+        kwargs = dict(
+            solver=solver,
+            tol=tol,
+            warm_start=warm_start,
+            time_limit=time_limit,
+            max_iter=max_iter,
+            ref_u=ref_u,
+        )
+        self._jobs.put((self._path(problem), kwargs))
+        limit = None if time_limit is None else 1.5 * time_limit + self.grace
+        start = time.perf_counter()
+        while True:
+            try:
+                answer: dict[str, Any] = self._answers.get(timeout=1.0)
+                break
+            except queue_mod.Empty:
+                elapsed = time.perf_counter() - start
+                if not self._proc.is_alive() or (limit is not None and elapsed > limit):
+                    code = self._proc.exitcode
+                    self._proc.kill()
+                    self._proc.join()
+                    self._proc = None
+                    if code is None:
+                        status, note = "time_limit", f"killed after {elapsed:.0f} s"
+                    elif code < 0:
+                        status, note = "error", f"killed by signal {-code} ({elapsed:.0f} s)"
+                    else:
+                        status, note = "error", f"child exited with code {code}"
+                    answer = {"status": status, "note": note, "wall_s": elapsed}
+                    break
+        row: dict[str, Any] = {c: np.nan for c in ROW_COLUMNS}
+        row.update(solver=solver, polished=False, note="")
+        try:
+            row["formulation"] = solvers.get(solver).formulation
+        except Exception:
+            pass
+        row.update(answer)
+        return row
+
+
+def default_memory_gb() -> float:
+    """Three quarters of the machine's memory, for a child's cap."""
+    try:
+        pages = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        return 0.75 * pages / 2**30
+    except (ValueError, OSError):
+        return 12.0

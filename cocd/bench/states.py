@@ -1,0 +1,198 @@
+"""Step problems along a recorded trajectory, cached on disk.
+
+Benchmarks compare backends on *the same* problems: a scene is advanced by one
+trajectory backend to a start time, then the next ``n_steps`` step problems are
+recorded with that backend's impulses (a warm start for the following step,
+matched by contact pair). Every backend is then timed on these problems, so
+that no backend's own trajectory changes what the others are asked.
+
+Recorded sequences are pickled in ``$COCD_CACHE/bench`` (default
+``~/.cache/cocd/bench``), keyed by a hash of the initial scene and every
+parameter; an unreadable or mismatched file is rebuilt, never trusted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pickle
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cocd.packing import cache_dir
+from cocd.problem import ConicProblem
+from cocd.scene import Scene
+from cocd.stepper import Stepper, match_impulses
+
+__all__ = ["StepSequence", "record_steps"]
+
+FloatArray = NDArray[np.float64]
+
+#: Bump when the recording changes, so that old cache files are not reused.
+_FORMAT = 1
+
+
+@dataclass
+class StepSequence:
+    """Consecutive step problems of one trajectory.
+
+    Attributes
+    ----------
+    label : str
+        Names the case in tables (``column-2d``, ``box-3d``, ...).
+    dim, n_free : int
+        Dimension and number of free grains.
+    dt, t_start : float
+        Time step and the time at the start of the first recorded step.
+    problems : list of ConicProblem
+    impulses : list of (nc, m) arrays
+        The trajectory backend's answer to each problem.
+    warm_starts : list of (nc, m) arrays or None
+        For each problem, the previous step's impulses matched by contact pair
+        (None for the first).
+    trajectory_solver, trajectory_tol : str, float
+    build_time : float
+        Seconds taken to record (0 when read from the cache).
+    """
+
+    label: str
+    dim: int
+    n_free: int
+    dt: float
+    t_start: float
+    problems: list[ConicProblem]
+    impulses: list[FloatArray]
+    warm_starts: list[FloatArray | None]
+    trajectory_solver: str
+    trajectory_tol: float
+    build_time: float = 0.0
+    meta: dict[str, float] = field(default_factory=dict)
+
+
+def record_steps(
+    label: str,
+    make_scene: Callable[[], Scene],
+    *,
+    dt: float,
+    t_start: float,
+    n_steps: int,
+    solver: str = "clarabel",
+    tol: float = 1e-8,
+    cache: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> StepSequence:
+    """Advance ``make_scene()`` with ``solver`` to ``t_start``, then record ``n_steps`` steps.
+
+    Parameters
+    ----------
+    label : str
+        Case name (also part of the cache file name).
+    make_scene : callable
+        Builds the initial scene (deterministic: its content is part of the key).
+    dt, t_start : float
+        Time step (s) and start time of the recorded steps (s).
+    n_steps : int
+        Number of recorded step problems.
+    solver, tol : str, float
+        Trajectory backend and its tolerance.
+    cache : bool
+        Read and write ``$COCD_CACHE/bench``.
+    progress : callable, optional
+        Called with a line of text every step while recording.
+    """
+    scene = make_scene()
+    key = _key(label, scene, dt, t_start, n_steps, solver, tol)
+    path = cache_dir() / "bench" / f"{label}-{key[:16]}.pkl"
+    if cache:
+        seq = _read(path, key)
+        if seq is not None:
+            return seq
+    start = time.perf_counter()
+    stepper = Stepper(scene, dt, solver=solver, tol=tol)
+    n_before = max(0, round(t_start / dt) - round(scene.time / dt))
+    say = progress or (lambda _line: None)
+    for k in range(n_before):
+        r = stepper.step()
+        say(f"{label}: preparing, step {k + 1}/{n_before}, t = {r.t:.4f} s, Nc = {r.nc}")
+    problems: list[ConicProblem] = []
+    impulses: list[FloatArray] = []
+    warm: list[FloatArray | None] = []
+    t0 = scene.time
+    prev_keys = stepper.contacts.keys if stepper.contacts is not None else None
+    prev_p = stepper.solution.p if stepper.solution is not None else None
+    for k in range(n_steps):
+        r = stepper.step()
+        assert stepper.problem is not None and stepper.solution is not None
+        assert stepper.contacts is not None
+        problem, p = stepper.problem, np.asarray(stepper.solution.p)
+        if prev_keys is not None and prev_p is not None:
+            w = match_impulses(prev_keys, prev_p, stepper.contacts.keys)
+            warm.append(w if w.shape == p.shape else None)
+        else:
+            warm.append(None)
+        problems.append(problem)
+        impulses.append(p)
+        prev_keys, prev_p = stepper.contacts.keys, p
+        say(f"{label}: recording, step {k + 1}/{n_steps}, t = {r.t:.4f} s, Nc = {r.nc}")
+    seq = StepSequence(
+        label=label,
+        dim=scene.dim,
+        n_free=scene.n_free,
+        dt=dt,
+        t_start=t0,
+        problems=problems,
+        impulses=impulses,
+        warm_starts=warm,
+        trajectory_solver=solver,
+        trajectory_tol=tol,
+        build_time=time.perf_counter() - start,
+    )
+    if cache:
+        _write(path, key, seq)
+    return seq
+
+
+def _key(
+    label: str, scene: Scene, dt: float, t_start: float, n: int, solver: str, tol: float
+) -> str:
+    h = hashlib.sha256()
+    h.update(f"{_FORMAT}|{label}|{dt!r}|{t_start!r}|{n}|{solver}|{tol!r}".encode())
+    for a in (scene.positions, scene.radii, scene.velocities, scene.fixed, scene.gravity):
+        h.update(np.ascontiguousarray(a).tobytes())
+    h.update(f"{scene.mu!r}|{scene.mu_wall!r}|{scene.time!r}".encode())
+    for w in scene.walls:
+        h.update(np.concatenate([w.point, w.normal]).tobytes() + repr(w.mu).encode())
+    h.update(np.ascontiguousarray(scene.density).tobytes())
+    return h.hexdigest()
+
+
+def _read(path: Path, key: str) -> StepSequence | None:
+    if not path.exists():
+        return None
+    try:
+        with open(path, "rb") as f:
+            stored_key, seq = pickle.load(f)
+    except Exception:
+        return None
+    if stored_key != key or not isinstance(seq, StepSequence):
+        return None
+    seq.build_time = 0.0
+    return seq
+
+
+def _write(path: Path, key: str, seq: StepSequence) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump((key, seq), f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
