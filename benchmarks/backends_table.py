@@ -40,6 +40,7 @@ import pandas as pd
 
 import cocd
 import solvers
+from cocd.bench.report import write_meta
 from cocd.residuals import ccp_residual, coulomb_residual
 
 CACHE = Path(__file__).parent / ".cache"
@@ -231,6 +232,12 @@ def main() -> None:
         )
         f.write(table.to_markdown(index=False, floatfmt=".3g"))
         f.write("\n")
+    write_meta(
+        out,
+        "backends",
+        title="One step of every backend",
+        files=[out / "backends.csv", out / "backends.md"],
+    )
     print(table.to_string(index=False))
 
 

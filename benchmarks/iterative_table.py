@@ -30,6 +30,7 @@ import pandas as pd
 
 import cocd
 import solvers
+from cocd.bench.report import write_meta
 from cocd.residuals import ccp_residual, coulomb_residual
 from cocd.stepper import match_impulses
 
@@ -117,6 +118,12 @@ def main() -> None:
         )
         f.write(table.to_markdown(index=False, floatfmt=".3g"))
         f.write("\n")
+    write_meta(
+        out,
+        "iterative",
+        title="Iterative backends, cold and warm",
+        files=[out / "iterative.csv", out / "iterative.md"],
+    )
     print(table.to_string(index=False))
 
 
