@@ -3,7 +3,7 @@
 Usage::
 
     python examples/collapse_2d_slope.py [--n 2000] [--slope 22] [--solver clarabel]
-        [--tol 1e-6] [--t-max 3.0] [--out results]
+        [--tol 1e-6] [--t-max 6.0] [--bed-length 2.5] [--out results]
 
 The column (R0 x H0 = 20 x 14 cm, 10 % polydispersity) stands on a rough bed of
 glued grains, tilted by ``--slope`` degrees (a tilted gravity), and is released
@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 import cocd
+from cocd.bench.report import write_meta
 from cocd.builders import grain_groups
 from cocd.measure import front_position, kinetic_energy, main_mass, mass_profile
 
@@ -46,26 +47,35 @@ def main() -> None:
     parser.add_argument("--solver", default="clarabel")
     parser.add_argument("--tol", type=float, default=1e-6)
     parser.add_argument("--dt", type=float, default=1e-3)
-    parser.add_argument("--t-max", type=float, default=3.0)
+    parser.add_argument("--t-max", type=float, default=6.0)
+    parser.add_argument("--t-mid", type=float, default=0.4)
+    parser.add_argument("--bed-length", type=float, default=2.5)
     parser.add_argument("--rest", type=float, default=1e-6)
     parser.add_argument("--out", default="results")
     args = parser.parse_args()
 
     scene = cocd.column_collapse(
-        2, n_grains=args.n, slope_deg=args.slope, bed="rough", bed_length=1.0, mu=args.mu
+        2,
+        n_grains=args.n,
+        slope_deg=args.slope,
+        bed="rough",
+        bed_length=args.bed_length,
+        mu=args.mu,
     )
     column = np.zeros(scene.n_grains, dtype=bool)
     column[grain_groups(scene)["column"]] = True
     r0 = scene.positions[column, 0].max() + scene.radii[column].max()
+    out = Path(args.out)
+    out.mkdir(exist_ok=True)
     stepper = cocd.Stepper(scene, args.dt, solver=args.solver, tol=args.tol)
 
     # Profile bins two mean diameters wide: finer bins see single grains.
-    x_bins = np.arange(0.0, 1.0 + 1e-9, 4.0 * float(scene.radii[column].mean()))
+    x_bins = np.arange(0.0, args.bed_length + 1e-9, 4.0 * float(scene.radii[column].mean()))
     profiles = {0.0: mass_profile(scene, x_bins=x_bins, mask=column)}
     pe0 = _potential(scene, column)
     times, fronts = [0.0], [front_position(scene, mask=column)]
     start = time.perf_counter()
-    released = 0.0
+    released, ek = 0.0, float("inf")
     while scene.time < args.t_max:
         record = stepper.step()
         times.append(scene.time)
@@ -81,17 +91,15 @@ def main() -> None:
                 f"({time.perf_counter() - start:.0f} s)",
                 flush=True,
             )
-        if scene.time >= 0.1 and 0.1 not in profiles and len(profiles) == 1:
+        if stepper.step_count % 250 == 0:  # a failed long run keeps its front so far
+            _write_front(out, times, fronts)
+        if scene.time >= args.t_mid and len(profiles) == 1:
             profiles[round(scene.time, 3)] = mass_profile(scene, x_bins=x_bins, mask=column)
         if scene.time > 0.05 and released > 0 and ek < args.rest * released:
             break
     profiles[round(scene.time, 3)] = mass_profile(scene, x_bins=x_bins, mask=column)
 
-    out = Path(args.out)
-    out.mkdir(exist_ok=True)
-    pd.DataFrame({"t": times, "front": fronts}).to_csv(
-        out / "collapse_2d_slope_front.csv", index=False
-    )
+    _write_front(out, times, fronts)
 
     fig, ax = plt.subplots(figsize=(8, 3.2))
     for t, prof in profiles.items():
@@ -114,9 +122,27 @@ def main() -> None:
     fig.savefig(out / "collapse_2d_slope_front.png", dpi=120)
 
     runout = (fronts[-1] - r0) / r0
-    print(
-        f"stopped at t = {scene.time:.3f} s after {stepper.step_count} steps "
-        f"({time.perf_counter() - start:.0f} s); runout (L_f - L0) / L0 = {runout:.3f}"
+    at_rest = ek < args.rest * released
+    summary = (
+        f"{'At rest' if at_rest else 'NOT at rest (stopped at the --t-max cap)'}: "
+        f"t = {scene.time:.3f} s after {stepper.step_count} steps "
+        f"({time.perf_counter() - start:.0f} s); main-mass kinetic energy {ek:.2e} J/m, "
+        f"{ek / max(released, 1e-300):.1e} of the potential energy released; "
+        f"front moved {fronts[-1] - r0:.3f} m, runout (L_f - L0) / L0 = {runout:.3f}."
+    )
+    print(summary)
+    write_meta(
+        out,
+        "collapse_2d_slope",
+        title=f"A 2D collapse on a {args.slope:g} degree slope",
+        files=[out / f"collapse_2d_slope_{k}" for k in ("profiles.png", "front.png", "front.csv")],
+        summary=summary,
+    )
+
+
+def _write_front(out: Path, times: list[float], fronts: list[float]) -> None:
+    pd.DataFrame({"t": times, "front": fronts}).to_csv(
+        out / "collapse_2d_slope_front.csv", index=False
     )
 
 
