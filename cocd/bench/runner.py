@@ -115,7 +115,9 @@ def solve_row(
         polished=bool(any(a[3] for a in attempts)) if attempts else False,
         note=str(sol.extras.get("approximation", "")),
     )
-    if sol.found:
+    # max_iter and time_limit answers carry impulses too: their residuals say how
+    # far the backend got.
+    if _usable(problem, sol.u, sol.p):
         res = residuals(problem, sol.u, sol.p)
         row.update(
             ccp_residual=res.ccp,
@@ -127,6 +129,18 @@ def solve_row(
     if keep_solution:
         row["u"], row["p"] = sol.u, sol.p
     return row
+
+
+def _usable(problem: ConicProblem, u: Any, p: Any) -> bool:
+    if u is None or p is None:
+        return False
+    u, p = np.asarray(u), np.asarray(p)
+    return (
+        u.size == problem.ndof
+        and p.size == problem.nc * problem.contact_dim
+        and bool(np.all(np.isfinite(u)))
+        and bool(np.all(np.isfinite(p)))
+    )
 
 
 def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
@@ -176,6 +190,7 @@ class Worker:
         self._answers: Any = None
         self._dir = tempfile.TemporaryDirectory(prefix="cocd-bench-")
         self._paths: dict[int, str] = {}
+        self._problems: list[ConicProblem] = []
 
     def __enter__(self) -> Worker:
         return self
@@ -208,6 +223,8 @@ class Worker:
             with open(path, "wb") as f:
                 pickle.dump(problem, f, protocol=pickle.HIGHEST_PROTOCOL)
             self._paths[key] = str(path)
+            # Held so that its id is not reused by another problem while this worker lives.
+            self._problems.append(problem)
         return self._paths[key]
 
     def solve_row(
@@ -223,7 +240,8 @@ class Worker:
     ) -> dict[str, Any]:
         """As :func:`solve_row`, in the child process; never raises for a backend failure.
 
-        ``problem`` must stay alive while it is used (it is keyed by identity).
+        Each problem is written to disk once per worker (keyed by identity) and
+        kept alive by the worker until :meth:`close`.
         """
         if self._proc is None or not self._proc.is_alive():
             self._start()

@@ -1,0 +1,511 @@
+"""``cocd bench table1``: the seed's Table 1 (iterations and time per step), for every backend.
+
+Two cases, as in the seed (section 3.4, Table 1):
+
+- *variation of N* (2D): a column of ``N`` discs (20 cm wide, aspect 0.7,
+  :func:`~cocd.builders.column_2d`) collapsing; ``dt = 1e-3`` s, ``eps = 1e-8``,
+  statistics over the steps from ``t = 0.11`` s, for the seed's four
+  ``N = 1109, 8308, 20488, 50772`` times ``scale``;
+- *variation of mu* (3D): a column of ``122932 * scale`` spheres (R0 x H0 =
+  20 x 14 cm in a 20 cm wide channel, on a rough bed of glued grains,
+  :func:`~cocd.builders.column_collapse`, ``mu = 0.3``) collapsing, as in the
+  seed (its box at rest is this collapse's initial state); ``dt = 1e-2`` s,
+  ``eps = 1e-8`` and ``1e-5``, statistics over the steps from ``t = 1`` s.
+
+Each case's step problems are recorded once along one accurate trajectory
+(:func:`~cocd.bench.states.record_steps`, cached), then every backend solves
+the same problems in a :class:`~cocd.bench.runner.Worker` (time limit, memory
+cap). ``eps`` is the ``tol`` handed to each backend; what the rows compare are
+the framework's residuals (:mod:`cocd.residuals`). The seed's own rows (Mosek,
+2 x 8 cores) are added for reference.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+import solvers
+from cocd.bench import select_solvers
+from cocd.bench.report import write_meta, write_table
+from cocd.bench.runner import Worker, default_memory_gb
+from cocd.bench.states import StepSequence, record_steps
+from cocd.builders import column_2d, column_collapse, stack
+from cocd.contacts import detect_contacts
+from cocd.errors import CocdError
+from cocd.problem import ConicProblem, assemble
+from cocd.scene import Scene
+
+__all__ = ["COLUMNS", "SEED_ROWS", "run"]
+
+#: Columns of ``table1.csv``, in order.
+COLUMNS = [
+    "source",
+    "case",
+    "dim",
+    "N",
+    "Nc",
+    "dt",
+    "eps",
+    "solver",
+    "warm",
+    "steps_ok",
+    "iterations",
+    "time_per_step_s",
+    "ccp_residual",
+    "coulomb_residual",
+    "scale",
+    "note",
+]
+
+THIS_MACHINE = "this machine"
+SEED = "seed (Mosek, 2x8 cores)"
+CASE_2D = "variation of N"
+CASE_3D = "variation of mu"
+
+#: Disc counts of the seed's "variation of N" (its Fig. 5 and Table 1).
+SEED_N_2D = [1109, 8308, 20488, 50772]
+#: Sphere count of the seed's "variation of mu".
+SEED_N_3D = 122932
+#: Below this the column is too small to flow like a granular column.
+MIN_GRAINS = 20
+DT_2D, DT_3D = 1e-3, 1e-2
+EPS_2D = [1e-8]
+EPS_3D = [1e-8, 1e-5]
+MU_3D = 0.3
+CHANNEL_WIDTH = 0.2
+TRAJECTORY_TOL = 1e-8
+
+#: Table 1 of the seed (DESIGN.md section 5): Mosek's interior point, cold, ten steps.
+SEED_ROWS: list[dict[str, Any]] = [
+    dict(case=CASE_2D, dim=2, N=8308, Nc=37331, dt=DT_2D, eps=1e-8, iterations=47, time=8.85),
+    dict(case=CASE_2D, dim=2, N=50772, Nc=238659, dt=DT_2D, eps=1e-8, iterations=61, time=51.9),
+    dict(case=CASE_3D, dim=3, N=122932, Nc=829505, dt=DT_3D, eps=1e-8, iterations=21, time=475.8),
+    dict(case=CASE_3D, dim=3, N=122932, Nc=829505, dt=DT_3D, eps=1e-5, iterations=11, time=269.9),
+]
+
+#: Statuses for which the backend returned within its limits (timed and counted).
+_RETURNED = ("optimal", "inaccurate", "max_iter")
+#: Statuses after which the rest of a case is not worth the time.
+_FAILED = ("error", "time_limit", "infeasible")
+
+
+def run(
+    *,
+    solvers: str | list[str] | None,
+    scale: float,
+    cases: list[str],
+    steps: int,
+    time_limit: float,
+    memory_gb: float | None,
+    out: Path,
+    t_start_2d: float = 0.11,
+    t_start_3d: float = 1.0,
+    trajectory_solver: str | None = None,
+    progress: Callable[[str], None] = print,
+) -> pd.DataFrame:
+    """Run the Table 1 cases with every selected backend; write ``table1.csv/.md/.meta.json``.
+
+    Parameters
+    ----------
+    solvers : str, list of str or None
+        Backends (comma-separated names or a list); None for the harness's
+        default set (:func:`cocd.bench.select_solvers`). Backends that cannot
+        handle a case's dimension are left out of that case.
+    scale : float
+        Grain counts are the seed's times ``scale``, in (0, 1]; at least
+        20 discs in 2D.
+    cases : list of {"2d", "3d"}
+        Which halves of the table.
+    steps : int
+        Step problems averaged per row (the seed: 10).
+    time_limit : float
+        Seconds per solve; a backend that overruns it on a case's first
+        problem is not run on the rest of that case.
+    memory_gb : float or None
+        Memory cap of the backends' process (GiB); default 3/4 of the machine's.
+    out : Path
+        Output directory.
+    t_start_2d, t_start_3d : float
+        Time (s) of the first recorded step, 2D and 3D.
+    trajectory_solver : str, optional
+        Backend that advances the scenes and records the problems (at
+        ``tol = 1e-8``); default ``clarabel`` in 2D and ``scs-dual`` in 3D,
+        the faster accurate one for each (measured on this machine: clarabel
+        1.7 times faster for 831 discs, scs-dual 3.8 times faster for 1229
+        spheres).
+    progress : callable
+        Receives progress lines.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per case, ``N``, ``eps`` and backend (:data:`COLUMNS`), then
+        the seed's rows.
+
+    Raises
+    ------
+    CocdError
+        For an unknown case, ``scale`` outside (0, 1], ``steps < 1``, a bad
+        time limit or memory cap, or an unknown backend.
+    """
+    scale, steps, wanted = _check(scale, cases, steps, time_limit, memory_gb)
+    cap = default_memory_gb() if memory_gb is None else float(memory_gb)
+    trajectory = {dim: _trajectory_solver(trajectory_solver, dim) for dim in (2, 3)}
+    # Both lists first, so that a bad name fails before any work.
+    names = {dim: select_solvers(solvers, dim) for dim in (2, 3) if f"{dim}d" in wanted}
+    for dim, chosen in names.items():
+        if not chosen:
+            progress(f"table1: no selected backend solves {dim}D problems; {dim}D skipped")
+    rows: list[dict[str, Any]] = []
+    start = time.perf_counter()
+    if names.get(2):
+        sizes = sorted({max(MIN_GRAINS, round(scale * n)) for n in SEED_N_2D})
+        for n in sizes:
+            make = partial(column_2d, n)
+            label = f"table1-column-2d-{n}"
+            rows += _case(
+                CASE_2D,
+                label,
+                make,
+                DT_2D,
+                t_start_2d,
+                EPS_2D,
+                names=names[2],
+                trajectory=trajectory[2],
+                steps=steps,
+                time_limit=time_limit,
+                memory_gb=cap,
+                scale=scale,
+                progress=progress,
+            )
+    if names.get(3):
+        n = max(1, round(scale * SEED_N_3D))
+        make = partial(column_collapse, 3, n_grains=n, width=CHANNEL_WIDTH, bed="rough", mu=MU_3D)
+        label = f"table1-column-3d-{n}"
+        rows += _case(
+            CASE_3D,
+            label,
+            make,
+            DT_3D,
+            t_start_3d,
+            EPS_3D,
+            names=names[3],
+            trajectory=trajectory[3],
+            steps=steps,
+            time_limit=time_limit,
+            memory_gb=cap,
+            scale=scale,
+            progress=progress,
+        )
+    table = pd.DataFrame(rows + _seed_rows(), columns=COLUMNS)
+    progress(f"table1: done in {time.perf_counter() - start:.0f} s")
+    _write(out, table, scale, steps, wanted, trajectory, t_start_2d, t_start_3d, time_limit)
+    return table
+
+
+# -- one case -----------------------------------------------------------------
+def _case(
+    case: str,
+    label: str,
+    make: Callable[[], Scene],
+    dt: float,
+    t_start: float,
+    eps_list: list[float],
+    *,
+    names: list[str],
+    trajectory: str,
+    steps: int,
+    time_limit: float,
+    memory_gb: float,
+    scale: float,
+    progress: Callable[[str], None],
+) -> list[dict[str, Any]]:
+    """Record one case's step problems, then run every backend on them at every eps."""
+    scene = make()
+    dim, n = scene.dim, scene.n_free
+    base = dict(
+        source=THIS_MACHINE, case=case, dim=dim, N=n, dt=dt, scale=scale, steps_ok=f"0/{steps}"
+    )
+    progress(
+        f"{label}: {n} grains, recording {steps} steps from t = {t_start:g} s "
+        f"with {trajectory} (tol {TRAJECTORY_TOL:g})"
+    )
+    try:
+        seq = record_steps(
+            label,
+            make,
+            dt=dt,
+            t_start=t_start,
+            n_steps=steps,
+            solver=trajectory,
+            tol=TRAJECTORY_TOL,
+            progress=_throttled(progress),
+        )
+    except CocdError as exc:
+        # No problems to compare on: every backend gets a row saying why.
+        note = f"no step problems: trajectory ({trajectory}) failed: {str(exc)[:200]}"
+        progress(f"{label}: {note}")
+        return [
+            {**base, "Nc": np.nan, "eps": eps, "solver": name, "warm": "no", "note": note}
+            for eps in eps_list
+            for name in names
+        ]
+    nc = float(np.mean([p.nc for p in seq.problems]))
+    built = "read from the cache" if seq.build_time == 0.0 else f"{seq.build_time:.0f} s"
+    progress(f"{label}: {len(seq.problems)} problems, mean Nc = {nc:.0f} ({built})")
+    base["Nc"] = nc
+    rows: dict[tuple[float, str], dict[str, Any]] = {}
+    # Kept alive while the worker uses it (the worker keys problems by identity).
+    warmup = _warmup_problem(dim, dt)
+    with Worker(memory_gb=memory_gb) as worker:
+        for name in names:
+            # Loosest eps first: a backend out of time there would be at a tighter eps too.
+            timed_out_at: float | None = None
+            for eps in sorted(eps_list, reverse=True):
+                if timed_out_at is not None:
+                    rows[eps, name] = {
+                        **base,
+                        "eps": eps,
+                        "solver": name,
+                        "warm": "yes" if _takes_warm_start(name, seq) else "no",
+                        "note": f"not run: time limit on the first problem at eps {timed_out_at:g}",
+                    }
+                    continue
+                # Imports and JIT compilation in the worker would otherwise be timed
+                # as part of the first step.
+                worker.solve_row(warmup, name, eps, time_limit=time_limit)
+                row = _solver_rows(worker, seq, name, eps, time_limit, label, progress)
+                rows[eps, name] = {**base, "eps": eps, "solver": name, **row}
+                if row["first_status"] == "time_limit":
+                    timed_out_at = eps
+    # The seed lists the tighter eps first.
+    return [
+        {k: v for k, v in rows[eps, name].items() if k in COLUMNS}
+        for eps in sorted(eps_list)
+        for name in names
+    ]
+
+
+def _solver_rows(
+    worker: Worker,
+    seq: StepSequence,
+    name: str,
+    eps: float,
+    time_limit: float,
+    label: str,
+    progress: Callable[[str], None],
+) -> dict[str, Any]:
+    """Solve every problem of ``seq`` with ``name``; the statistics of one table row."""
+    warm = _takes_warm_start(name, seq)
+    answers: list[dict[str, Any]] = []
+    total = len(seq.problems)
+    for k, problem in enumerate(seq.problems):
+        ws = seq.warm_starts[k] if warm else None
+        row = worker.solve_row(problem, name, eps, warm_start=ws, time_limit=time_limit)
+        answers.append(row)
+        progress(
+            f"{label}: {name} eps {eps:g} step {k + 1}/{total}: {row['status']}, "
+            f"{_fmt(row.get('iterations'))} it, {_fmt(row.get('wall_s'), '.3g')} s, "
+            f"ccp {_fmt(row.get('ccp_residual'), '.2g')}"
+        )
+        if k == 0 and row["status"] in _FAILED:
+            # The first problem is like the others: the rest would fail the same way.
+            break
+    return _summarise(answers, total, warm)
+
+
+def _warmup_problem(dim: int, dt: float) -> ConicProblem:
+    """Three grains stacked on the floor: a frictional problem of the case's dimension."""
+    scene = stack(3, dim=dim, mu=MU_3D)
+    return assemble(scene, detect_contacts(scene), dt)
+
+
+def _takes_warm_start(name: str, seq: StepSequence) -> bool:
+    return bool(solvers.get(name).warm_start) and any(w is not None for w in seq.warm_starts)
+
+
+def _summarise(answers: list[dict[str, Any]], total: int, warm: bool) -> dict[str, Any]:
+    """Means (iterations, wall time) over returned solves, max residuals, and what went wrong."""
+    statuses = [str(a.get("status")) for a in answers]
+    returned = [a for a, s in zip(answers, statuses, strict=True) if s in _RETURNED]
+    ok = sum(s == "optimal" for s in statuses)
+    notes = []
+    bad = Counter(s for s in statuses if s != "optimal")
+    if bad:
+        notes.append(", ".join(f"{s} on {c} step{'s' * (c > 1)}" for s, c in bad.items()))
+    details = {str(a.get("note") or "") for a in answers} - {""}
+    notes += sorted(details)
+    if len(answers) < total:
+        notes.append(f"stopped after the first problem ({total - len(answers)} not run)")
+    return {
+        "warm": "yes" if warm else "no",
+        "steps_ok": f"{ok}/{total}",
+        "iterations": _mean(returned, "iterations"),
+        "time_per_step_s": _mean(returned, "wall_s"),
+        "ccp_residual": _max(answers, "ccp_residual"),
+        "coulomb_residual": _max(answers, "coulomb_residual"),
+        "note": "; ".join(notes)[:300],
+        "first_status": statuses[0] if statuses else "",
+    }
+
+
+def _seed_rows() -> list[dict[str, Any]]:
+    return [
+        {
+            "source": SEED,
+            "case": r["case"],
+            "dim": r["dim"],
+            "N": r["N"],
+            "Nc": float(r["Nc"]),
+            "dt": r["dt"],
+            "eps": r["eps"],
+            "solver": "mosek",
+            "warm": "no",
+            "steps_ok": "",
+            "iterations": float(r["iterations"]),
+            "time_per_step_s": r["time"],
+            "ccp_residual": np.nan,
+            "coulomb_residual": np.nan,
+            "scale": 1.0,
+            "note": "seed Table 1 (Mosek interior point; Nc: potential contacts)",
+        }
+        for r in SEED_ROWS
+    ]
+
+
+# -- output -------------------------------------------------------------------
+def _write(
+    out: Path,
+    table: pd.DataFrame,
+    scale: float,
+    steps: int,
+    wanted: list[str],
+    trajectory: dict[int, str],
+    t_start_2d: float,
+    t_start_3d: float,
+    time_limit: float,
+) -> None:
+    title = "Table 1: iterations and time per step against N, dt and eps"
+    halves = []
+    if "2d" in wanted:
+        halves.append(
+            f"2D *{CASE_2D}*: columns of N discs (the seed's 1109, 8308, 20488, 50772 times "
+            f"{scale:g}, at least {MIN_GRAINS}; 20 cm wide, aspect 0.7), dt = {DT_2D:g} s, "
+            f"{steps} steps from t = {t_start_2d:g} s, trajectory by {trajectory[2]}."
+        )
+    if "3d" in wanted:
+        halves.append(
+            f"3D *{CASE_3D}*: a column of {SEED_N_3D} x {scale:g} spheres (20 x 14 cm, "
+            "20 cm wide channel, rough bed) collapsing, "
+            f"mu = {MU_3D:g}, dt = {DT_3D:g} s, {steps} steps from t = {t_start_3d:g} s, "
+            f"trajectory by {trajectory[3]}."
+        )
+    intro = "\n".join(
+        [
+            f"N scaled by {scale:g} for this 2-core machine (the seed ran Mosek on 2 x 8 cores "
+            "at full size; its rows are at the bottom). Every backend solves the same "
+            f"recorded step problems (trajectory backends at tol {TRAJECTORY_TOL:g}); "
+            "eps is the tol handed to each backend, the residuals are the framework's "
+            "(`cocd.residuals`), max over the steps with an answer (optimal or inaccurate; "
+            "max_iter and failed steps have none). Interior points start cold; backends "
+            "that take a warm start get the previous step's impulses (column `warm`). "
+            f"Time limit {time_limit:g} s per solve; time per step is the wall time of the "
+            "whole call (set-up included), averaged over the solves that returned.",
+            "",
+            *[f"- {h}" for h in halves],
+        ]
+    )
+    files = write_table(out, "table1", table, title=title, intro=intro)
+    key = [
+        "source",
+        "case",
+        "N",
+        "Nc",
+        "eps",
+        "solver",
+        "steps_ok",
+        "iterations",
+        "time_per_step_s",
+        "ccp_residual",
+    ]
+    summary = f"N scaled by {scale:g}.\n\n" + table[key].to_markdown(index=False, floatfmt=".3g")
+    write_meta(out, "table1", title=title, files=files, summary=summary)
+
+
+# -- helpers ------------------------------------------------------------------
+def _check(
+    scale: float, cases: list[str], steps: int, time_limit: float, memory_gb: float | None
+) -> tuple[float, int, list[str]]:
+    """Validated ``scale``, ``steps`` and cases (lower case, each once, in order)."""
+    try:
+        s = float(scale)
+    except (TypeError, ValueError):
+        raise CocdError(f"scale must be a number in (0, 1], got {scale!r}") from None
+    if not (math.isfinite(s) and 0.0 < s <= 1.0):
+        raise CocdError(f"scale must be in (0, 1], got {scale!r}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise CocdError(f"steps must be an integer >= 1, got {steps!r}")
+    if isinstance(cases, str):
+        cases = [cases]
+    wanted = list(dict.fromkeys(str(c).strip().lower() for c in cases))
+    unknown = [c for c in wanted if c not in ("2d", "3d")]
+    if unknown or not wanted:
+        raise CocdError(f"cases must be among '2d' and '3d', got {list(cases)!r}")
+    if not (math.isfinite(time_limit) and time_limit > 0):
+        raise CocdError(f"time_limit must be > 0 seconds, got {time_limit!r}")
+    if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0):
+        raise CocdError(f"memory_gb must be > 0, got {memory_gb!r}")
+    return s, int(steps), wanted
+
+
+def _trajectory_solver(name: str | None, dim: int) -> str:
+    if name is not None:
+        solvers.get(name)  # an unknown name fails here, before any work
+        return name
+    if dim == 3 and "scs-dual" in solvers.available():
+        return "scs-dual"
+    return "clarabel"
+
+
+def _throttled(progress: Callable[[str], None], every: float = 10.0) -> Callable[[str], None]:
+    """Pass recording lines on, and a preparation line at most every ``every`` seconds."""
+    last = -math.inf
+
+    def say(line: str) -> None:
+        nonlocal last
+        now = time.perf_counter()
+        if "recording" in line or now - last >= every:
+            last = now
+            progress(line)
+
+    return say
+
+
+def _mean(rows: list[dict[str, Any]], key: str) -> float:
+    values = [float(r[key]) for r in rows if _finite(r.get(key))]
+    return float(np.mean(values)) if values else math.nan
+
+
+def _max(rows: list[dict[str, Any]], key: str) -> float:
+    values = [float(r[key]) for r in rows if _finite(r.get(key))]
+    return max(values) if values else math.nan
+
+
+def _finite(value: object) -> bool:
+    try:
+        return math.isfinite(float(value))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
+def _fmt(value: object, spec: str = ".0f") -> str:
+    return format(float(value), spec) if _finite(value) else "-"  # type: ignore[arg-type]
