@@ -1,0 +1,846 @@
+"""``cocd bench precision``: speed against error (work-precision diagrams and profiles).
+
+Every backend sweeps a list of tolerances on the same step problems, cold and
+warm-started, and each run is placed by what it achieved (the framework's
+``ccp_residual`` and ``u_error``, :mod:`cocd.residuals`) against what it cost
+(wall-clock seconds), never by the tolerance it was asked.
+
+Problems
+--------
+``column-2d``
+    :func:`~cocd.builders.column_2d` with ``n2d`` discs, ``dt = 1e-3`` s, the
+    step that starts at ``t = 0.05`` s: the column is collapsing, many contacts
+    slide (the degenerate case for interior points).
+``box-3d``
+    :func:`~cocd.builders.box_3d` with ``n3d`` spheres, ``dt = 1e-2`` s (the
+    seed's 3D time step), the step that starts at ``t = 0.1`` s: the lattice
+    has fallen onto the floor and is settling; about 3.5 contacts per sphere
+    (715 contacts for 200 spheres), most of them sticking.
+
+Each is recorded with :func:`~cocd.bench.states.record_steps` (two steps, so
+that the second, the one used, has the first one's impulses as a warm start).
+Each problem is an instance twice: ``cold`` and ``warm`` (warm start given to
+the backends that use one; the others' cold runs stand for them on the warm
+instance, marked ``no warm start`` in the plots).
+
+Reference
+---------
+Clarabel at ``tol = 1e-10`` in this process (with the refinement and polishing
+of :mod:`solvers.refine`). When its own ``ccp_residual`` is above ``1e-9``
+(Clarabel's primal stalls near 1e-8 on the 3D box), ``clarabel-dual`` and then
+``scs-dual`` are tried at the same tolerance and the most accurate answer is
+kept; the outputs name the reference's backend and its ``ccp_residual``, and
+say so when even the best is above ``1e-9``. ``u_error`` is measured against
+the reference's velocity.
+
+Outputs (under ``out``)
+-----------------------
+``precision.csv``
+    One row per run, timed-out sweeps' skipped tolerances included.
+``precision_<problem>.png``
+    Work-precision diagrams: wall time against ``ccp_residual`` (top) and
+    ``u_error`` (bottom), cold and warm panels, one curve per backend.
+``precision_profile.png``
+    Dolan-Moré performance profiles for the targets ``ccp_residual <= 1e-4,
+    1e-6, 1e-8``.
+``precision_sgm.csv``, ``precision_sgm.md``
+    Shifted geometric mean (shift :data:`SGM_SHIFT` s) of the time to reach each
+    target; an instance not reached within the time limit counts as the time
+    limit.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike, NDArray
+
+import solvers as backends
+from cocd.bench import select_solvers
+from cocd.bench.report import write_meta, write_table
+from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb
+from cocd.bench.states import StepSequence, record_steps
+from cocd.builders import box_3d, column_2d
+from cocd.errors import CocdError
+from cocd.problem import ConicProblem
+from cocd.residuals import ccp_residual
+from cocd.scene import Scene
+
+__all__ = [
+    "COLUMNS",
+    "REFERENCE_TOL",
+    "SGM_SHIFT",
+    "TARGETS",
+    "costs_to_target",
+    "performance_profile",
+    "performance_ratios",
+    "run",
+    "sgm_table",
+    "shifted_geometric_mean",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Accuracy targets on ``ccp_residual`` of the profiles and geometric means.
+TARGETS = (1e-4, 1e-6, 1e-8)
+#: Shift (seconds) of the geometric means: times well under a second weigh
+#: as little as they matter to a user, so a 1 ms against 2 ms gap does not
+#: count like a 100 s against 200 s one.
+SGM_SHIFT = 1.0
+#: The reference answer's tolerance, and the accuracy it must reach to be
+#: trusted as the zero of ``u_error``.
+REFERENCE_TOL = 1e-10
+REFERENCE_OK = 1e-9
+#: Tried in turn, at ``REFERENCE_TOL``, when Clarabel's answer is not within
+#: ``REFERENCE_OK``: on 3D problems Clarabel's primal can stall near 1e-8,
+#: where the dual formulations (interior point, then ADMM) still converge.
+REFERENCE_FALLBACKS = ("clarabel-dual", "scs-dual")
+
+#: Leading columns of ``precision.csv``; the runner's columns follow.
+COLUMNS = ["problem", "dim", "N", "Nc", "dt", "start", "solver", "tol"] + [
+    c for c in ROW_COLUMNS if c != "solver"
+]
+
+_STARTS = ("cold", "warm")
+#: Runs whose child was killed, i.e. the next job starts in a fresh process.
+_KILLED = ("killed", "child exited")
+
+
+@dataclass(frozen=True)
+class _Case:
+    """How a benchmark problem is made: scene, time step, start time."""
+
+    label: str
+    dim: int
+    make: Callable[[], Scene]
+    dt: float
+    t_start: float
+
+
+@dataclass
+class _Instance:
+    """One step problem with its reference answer."""
+
+    label: str
+    dim: int
+    n_free: int
+    dt: float
+    problem: ConicProblem
+    warm_start: FloatArray | None
+    ref_u: FloatArray
+    ref_ccp: float
+    ref_solver: str
+    #: Two copies of ``problem`` with no cached data, alternated between jobs.
+    copies: tuple[ConicProblem, ConicProblem]
+
+
+# -- pure maths: profiles and means -------------------------------------------
+def shifted_geometric_mean(times: ArrayLike, shift: float = SGM_SHIFT) -> float:
+    """``exp(mean(log(t + shift))) - shift`` of non-negative finite times.
+
+    Parameters
+    ----------
+    times : array_like
+        Seconds, at least one.
+    shift : float
+        Seconds added before the logarithm (and removed after); ``0`` gives
+        the plain geometric mean.
+
+    Returns
+    -------
+    float
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if t.size == 0:
+        raise ValueError("shifted_geometric_mean of no times")
+    if not (np.all(np.isfinite(t)) and np.all(t >= 0.0)):
+        raise ValueError(f"times must be finite and >= 0, got {t}")
+    if not shift >= 0.0:
+        raise ValueError(f"shift must be >= 0, got {shift}")
+    return float(np.exp(np.mean(np.log(t + shift))) - shift)
+
+
+def performance_ratios(costs: ArrayLike) -> FloatArray:
+    """Dolan-Moré ratios ``r[i, s] = costs[i, s] / min_s costs[i, s]``.
+
+    Parameters
+    ----------
+    costs : (n_instances, n_solvers) array_like
+        Cost of each solver on each instance, ``inf`` when it did not solve it.
+
+    Returns
+    -------
+    (n_instances, n_solvers) array
+        ``inf`` where the solver did not solve the instance (and on every
+        solver of an instance no one solved).
+    """
+    c = np.asarray(costs, dtype=np.float64)
+    if c.ndim != 2:
+        raise ValueError(f"costs must be (instances, solvers), got shape {c.shape}")
+    if np.any(np.isnan(c)) or np.any(c < 0.0):
+        raise ValueError("costs must be >= 0 (inf for unsolved), not NaN")
+    best = c.min(axis=1, initial=np.inf, keepdims=True)
+    ratios = np.full(c.shape, np.inf)
+    solved = np.isfinite(c)
+    # A zero best cost (an instance every solver answers instantly) makes every
+    # solver that solved it tie at 1, rather than 0/0; an instance nobody solved
+    # (best = inf) has no solved entry to divide.
+    positive = np.isfinite(best) & (best > 0.0)
+    safe = np.where(positive, best, 1.0)
+    ratios[solved] = np.where(positive, c / safe, 1.0)[solved]
+    return ratios
+
+
+def performance_profile(costs: ArrayLike, taus: ArrayLike) -> FloatArray:
+    """Fraction of instances each solver solves within ``tau`` times the best cost.
+
+    Parameters
+    ----------
+    costs : (n_instances, n_solvers) array_like
+        As :func:`performance_ratios`; unsolved (``inf``) never counts.
+    taus : (n_taus,) array_like
+        Ratios ``>= 1`` at which to evaluate.
+
+    Returns
+    -------
+    (n_taus, n_solvers) array
+        ``rho_s(tau) = #{i : r[i, s] <= tau} / n_instances``.
+    """
+    r = performance_ratios(costs)
+    t = np.asarray(taus, dtype=np.float64).reshape(-1)
+    if r.shape[0] == 0:
+        return np.zeros((t.size, r.shape[1]))
+    return np.asarray((r[None, :, :] <= t[:, None, None]).mean(axis=1), dtype=np.float64)
+
+
+def costs_to_target(
+    rows: pd.DataFrame,
+    target: float,
+    instances: Sequence[tuple[str, str]],
+    solver_names: Sequence[str],
+    time_limit: float,
+) -> FloatArray:
+    """Cost of each solver on each instance: its fastest run that reached ``target``.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Runs with columns ``problem``, ``start``, ``solver``, ``wall_s`` and
+        ``ccp_residual``.
+    target : float
+        A run reaches it when ``ccp_residual <= target``.
+    instances : sequence of (problem, start)
+    solver_names : sequence of str
+    time_limit : float
+        A run longer than this does not count (it would have been stopped).
+
+    Returns
+    -------
+    (n_instances, n_solvers) array
+        Smallest ``wall_s`` among the runs that reached the target, ``inf``
+        when none did.
+    """
+    costs = np.full((len(instances), len(solver_names)), np.inf)
+    ok = (rows["ccp_residual"] <= target) & (rows["wall_s"] <= time_limit)
+    good = rows[ok]
+    best = good.groupby(["problem", "start", "solver"])["wall_s"].min()
+    for i, (problem, start) in enumerate(instances):
+        for s, name in enumerate(solver_names):
+            key = (problem, start, name)
+            if key in best.index:
+                costs[i, s] = float(best[key])
+    return costs
+
+
+def sgm_table(
+    costs: dict[float, FloatArray],
+    solver_names: Sequence[str],
+    time_limit: float,
+    shift: float = SGM_SHIFT,
+) -> pd.DataFrame:
+    """Shifted geometric mean of the time to reach each target, per solver.
+
+    Parameters
+    ----------
+    costs : dict target -> (n_instances, n_solvers) array
+        From :func:`costs_to_target`; ``inf`` (not reached) counts as
+        ``time_limit``.
+    solver_names : sequence of str
+    time_limit : float
+    shift : float
+
+    Returns
+    -------
+    DataFrame
+        Columns ``target``, ``solver``, ``solved`` (instances that reached the
+        target), ``instances``, ``sgm_s`` (seconds) and ``sgm_rel`` (over the
+        best solver's ``sgm_s`` for that target, so the best is 1.0); sorted by
+        target (loosest first) then ``sgm_rel``. ``sgm_rel`` is NaN for a
+        target no solver reached on any instance.
+    """
+    records: list[dict[str, Any]] = []
+    for target, c in costs.items():
+        charged = np.where(np.isfinite(c), c, time_limit)
+        means = [shifted_geometric_mean(charged[:, s], shift) for s in range(len(solver_names))]
+        # With no instance reached by anyone every mean is the time limit:
+        # a ratio of 1.0 would read as a tie of winners, not of failures.
+        anyone = bool(np.isfinite(c).any())
+        best = min(means, default=np.nan) if anyone else np.nan
+        for s, name in enumerate(solver_names):
+            records.append(
+                {
+                    "target": target,
+                    "solver": name,
+                    "solved": int(np.isfinite(c[:, s]).sum()),
+                    "instances": int(c.shape[0]),
+                    "sgm_s": means[s],
+                    "sgm_rel": means[s] / best if best > 0 else (1.0 if anyone else np.nan),
+                }
+            )
+    table = pd.DataFrame(
+        records, columns=["target", "solver", "solved", "instances", "sgm_s", "sgm_rel"]
+    )
+    return table.sort_values(["target", "sgm_rel"], ascending=[False, True], kind="stable")
+
+
+def with_cold_runs_as_warm(rows: pd.DataFrame, warm_capable: set[str]) -> pd.DataFrame:
+    """Add, for backends that ignore a warm start, their cold runs as warm ones.
+
+    Such a backend would do exactly the same work on the warm instance, so its
+    cold runs stand for it there (instead of running it twice).
+    """
+    cold = rows[(rows["start"] == "cold") & ~rows["solver"].isin(warm_capable)].copy()
+    cold["start"] = "warm"
+    return pd.concat([rows, cold], ignore_index=True)
+
+
+# -- the command --------------------------------------------------------------
+def run(
+    *,
+    solvers: str | list[str] | None,
+    tols: Sequence[float],
+    n2d: int,
+    n3d: int,
+    time_limit: float,
+    memory_gb: float | None,
+    out: Path,
+    progress: Callable[[str], None] = print,
+) -> pd.DataFrame:
+    """Sweep ``tols`` with every backend on the 2D and 3D problems; write tables and plots.
+
+    Parameters
+    ----------
+    solvers : str or list of str, optional
+        Backends (comma-separated or a list); default the harness's set
+        (:func:`~cocd.bench.select_solvers`), per dimension.
+    tols : sequence of float
+        Tolerances asked of each backend, swept loosest first. Once a backend
+        times out on a problem, its tighter tolerances there are skipped.
+    n2d, n3d : int
+        Discs in the 2D column and spheres in the 3D box; 0 skips that
+        dimension.
+    time_limit : float
+        Seconds per solve (the backend's limit; its process is killed after
+        ``1.5 time_limit + 30`` s).
+    memory_gb : float, optional
+        Memory cap of the backend process (default 3/4 of the machine's).
+    out : Path
+        Output directory.
+    progress : callable
+        Called with one line of text per step of the work.
+
+    Returns
+    -------
+    DataFrame
+        The rows of ``precision.csv``.
+    """
+    tol_list = _check(tols, n2d, n3d, time_limit, memory_gb)
+    cases = _cases(n2d, n3d)
+    chosen = {case.label: select_solvers(solvers, case.dim) for case in cases}
+    if not any(chosen.values()):
+        raise CocdError(
+            f"none of the solvers {solvers!r} handles the requested problems "
+            f"(n2d = {n2d}, n3d = {n3d})"
+        )
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+
+    instances: list[_Instance] = []
+    warmups: dict[int, ConicProblem] = {}
+    for case in cases:
+        if not chosen[case.label]:
+            progress(f"{case.label}: no selected solver handles {case.dim}D problems, skipped")
+            continue
+        instances.append(_instance(case, progress))
+        warmups[case.dim] = _warmup_problem(case.dim)
+
+    rows: list[dict[str, Any]] = []
+    plan = [(i, n, s) for i in instances for n in chosen[i.label] for s in _starts(i, n)]
+    total, count = len(plan) * len(tol_list), 0
+    memory = default_memory_gb() if memory_gb is None else memory_gb
+    with Worker(memory_gb=memory) as worker:
+        jobs = _Jobs(worker, time_limit)
+        for inst, name, start in plan:
+            timed_out_at: float | None = None
+            for tol in tol_list:
+                count += 1
+                base = {
+                    "problem": inst.label,
+                    "dim": inst.dim,
+                    "N": inst.n_free,
+                    "Nc": inst.problem.nc,
+                    "dt": inst.dt,
+                    "start": start,
+                    "tol": tol,
+                }
+                if timed_out_at is not None:
+                    row = _skipped(name, f"timed out at tol {timed_out_at:g}")
+                else:
+                    jobs.warm_up(name, warmups[inst.dim], tol_list[0])
+                    warm = inst.warm_start if start == "warm" else None
+                    row = jobs.solve(inst, name, tol, warm)
+                    if _timed_out(row, time_limit):
+                        timed_out_at = tol
+                rows.append({**base, **row})
+                progress(f"[{count}/{total}] {_describe(rows[-1])}")
+            # Written after every sweep: a run of an hour that is stopped keeps its rows.
+            pd.DataFrame(rows, columns=COLUMNS).to_csv(out / "precision.csv", index=False)
+
+    table = pd.DataFrame(rows, columns=COLUMNS)
+    files = [out / "precision.csv"]
+    table.to_csv(files[0], index=False)
+
+    names = list(dict.fromkeys(n for i in instances for n in chosen[i.label]))
+    warm_capable_set = {n for n in names if backends.get(n).warm_start}
+    analysed = with_cold_runs_as_warm(table, warm_capable_set)
+    keys = [(i.label, s) for i in instances for s in _STARTS]
+    costs = {
+        target: costs_to_target(analysed, target, keys, names, time_limit) for target in TARGETS
+    }
+    sgm = sgm_table(costs, names, time_limit)
+    for inst in instances:
+        files.append(_plot_precision(analysed, inst, names, warm_capable_set, out))
+    files.append(_plot_profiles(costs, names, len(keys), out))
+
+    intro = _intro(instances, names, time_limit)
+    title = "Speed against error: work-precision, performance profiles, geometric means"
+    files += write_table(out, "precision_sgm", sgm, title=title, intro=intro)
+    summary = intro + "\n\n" + sgm.to_markdown(index=False, floatfmt=".3g")
+    write_meta(out, "precision", title=title, files=files, summary=summary)
+    progress(f"precision: {len(table)} rows in {time.perf_counter() - started:.0f} s")
+    progress(sgm.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    return table
+
+
+# -- pieces of run ------------------------------------------------------------
+def _check(
+    tols: Sequence[float], n2d: int, n3d: int, time_limit: float, memory_gb: float | None
+) -> list[float]:
+    try:
+        values = [float(t) for t in tols]
+    except (TypeError, ValueError):
+        raise CocdError(f"tols must be numbers, got {tols!r}") from None
+    if not values:
+        raise CocdError("tols is empty: give at least one tolerance, e.g. 1e-4,1e-8")
+    bad = [t for t in values if not (math.isfinite(t) and t > 0.0)]
+    if bad:
+        raise CocdError(f"tolerances must be finite and > 0, got {bad[0]!r} in {list(tols)!r}")
+    for name, n in (("n2d", n2d), ("n3d", n3d)):
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise CocdError(f"{name} must be an integer >= 0 (0 skips it), got {n!r}")
+    if n2d == 0 and n3d == 0:
+        raise CocdError("n2d and n3d are both 0: nothing to run")
+    if not (math.isfinite(time_limit) and time_limit > 0.0):
+        raise CocdError(f"time_limit must be > 0 seconds, got {time_limit!r}")
+    if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0.0):
+        raise CocdError(f"memory_gb must be > 0, got {memory_gb!r}")
+    # Loosest first: a sweep stops at the first time-out, and tighter
+    # tolerances would only take longer.
+    return sorted(set(values), reverse=True)
+
+
+def _cases(n2d: int, n3d: int) -> list[_Case]:
+    cases = []
+    if n2d > 0:
+        cases.append(_Case("column-2d", 2, partial(column_2d, int(n2d)), 1e-3, 0.05))
+    if n3d > 0:
+        cases.append(_Case("box-3d", 3, partial(box_3d, int(n3d)), 1e-2, 0.1))
+    return cases
+
+
+def _instance(case: _Case, progress: Callable[[str], None]) -> _Instance:
+    """Record the case's steps and solve the second one to the reference accuracy."""
+    seq: StepSequence = record_steps(
+        f"precision-{case.label}",
+        case.make,
+        dt=case.dt,
+        t_start=case.t_start,
+        n_steps=2,
+        progress=_throttled(progress, 5.0),
+    )
+    problem = seq.problems[-1]
+    progress(
+        f"{case.label}: N = {seq.n_free}, Nc = {problem.nc}, t = {seq.t_start + case.dt:.3f} s"
+    )
+    ref = _reference(problem, case.label, progress)
+    return _Instance(
+        label=case.label,
+        dim=case.dim,
+        n_free=seq.n_free,
+        dt=case.dt,
+        problem=problem,
+        warm_start=seq.warm_starts[-1],
+        ref_u=ref.u,
+        ref_ccp=ref.ccp,
+        ref_solver=ref.solver,
+        copies=(_pristine(problem), _pristine(problem)),
+    )
+
+
+@dataclass
+class _Reference:
+    u: FloatArray
+    ccp: float
+    solver: str
+
+
+def _reference(problem: ConicProblem, label: str, progress: Callable[[str], None]) -> _Reference:
+    """Clarabel at ``REFERENCE_TOL``; if not within ``REFERENCE_OK``, the best of the fallbacks."""
+    available = set(backends.available())
+    best: _Reference | None = None
+    for name in ("clarabel", *REFERENCE_FALLBACKS):
+        if name not in available:
+            continue
+        start = time.perf_counter()
+        try:
+            sol = backends.solve(problem, name, tol=REFERENCE_TOL)
+        except CocdError as exc:
+            progress(f"{label}: reference {name} failed: {exc}")
+            continue
+        elapsed = time.perf_counter() - start
+        if not sol.found:
+            progress(f"{label}: reference {name}: {sol.status.value}, {elapsed:.2f} s")
+            continue
+        ccp = ccp_residual(problem, sol.p)
+        progress(
+            f"{label}: reference {name} at tol {REFERENCE_TOL:g}: {sol.status.value}, "
+            f"ccp_residual {ccp:.2g}, {elapsed:.2f} s"
+        )
+        if best is None or ccp < best.ccp:
+            best = _Reference(np.asarray(sol.u, dtype=np.float64), ccp, name)
+        if best.ccp <= REFERENCE_OK:
+            break
+    if best is None:
+        raise CocdError(f"{label}: no reference answer (clarabel and its fallbacks failed)")
+    if best.ccp > REFERENCE_OK:
+        progress(
+            f"{label}: WARNING: the best reference ({best.solver}) has ccp_residual "
+            f"{best.ccp:.2g} > {REFERENCE_OK:g}; u_error below about that is not meaningful"
+        )
+    return best
+
+
+def _throttled(progress: Callable[[str], None], seconds: float) -> Callable[[str], None]:
+    """``progress`` for the first line and then at most once every ``seconds``.
+
+    Recording a trajectory reports every step; tens of lines a second would
+    bury the runs' results.
+    """
+    last = -math.inf
+
+    def say(line: str) -> None:
+        nonlocal last
+        now = time.perf_counter()
+        if now - last >= seconds:
+            last = now
+            progress(line)
+
+    return say
+
+
+def _pristine(problem: ConicProblem) -> ConicProblem:
+    """A copy without the lazily cached data (``W``, scales, ...) a solve leaves behind.
+
+    Every timed run must build its own data, so that the order in which
+    backends run does not decide which of them pays for ``W``.
+    """
+    return ConicProblem(
+        dim=problem.dim,
+        contact_dim=problem.contact_dim,
+        mass=problem.mass.copy(),
+        H=problem.H.copy(),
+        D=problem.D.copy(),
+        mu=problem.mu.copy(),
+        dt=problem.dt,
+        U=problem.U.copy(),
+    )
+
+
+def _warmup_problem(dim: int) -> ConicProblem:
+    """A tiny problem of dimension ``dim`` to load a backend's code before it is timed."""
+    if dim == 2:
+        seq = record_steps(
+            "precision-warmup-2d", partial(column_2d, 12), dt=1e-3, t_start=0.003, n_steps=1
+        )
+    else:
+        seq = record_steps(
+            "precision-warmup-3d", partial(box_3d, 8), dt=1e-2, t_start=0.02, n_steps=1
+        )
+    return seq.problems[-1]
+
+
+class _Jobs:
+    """Timed runs in one :class:`Worker`, each on a freshly loaded problem.
+
+    The worker keeps the last problem it loaded, with whatever a backend
+    cached in it. Alternating two pristine copies makes it load every job's
+    problem afresh. A backend is first run once, untimed, on a tiny problem in
+    the current child process, so that its timed runs do not include importing
+    modules or loading compiled kernels.
+    """
+
+    def __init__(self, worker: Worker, time_limit: float) -> None:
+        self.worker = worker
+        self.time_limit = time_limit
+        self.warmed: set[str] = set()
+        self.last: int | None = None
+
+    def warm_up(self, name: str, problem: ConicProblem, tol: float) -> None:
+        if name in self.warmed:
+            return
+        row = self.worker.solve_row(problem, name, tol, time_limit=self.time_limit)
+        self.last = id(problem)
+        self._note(row)
+        self.warmed.add(name)
+
+    def solve(
+        self, inst: _Instance, name: str, tol: float, warm_start: FloatArray | None
+    ) -> dict[str, Any]:
+        copy = inst.copies[0] if id(inst.copies[0]) != self.last else inst.copies[1]
+        row = self.worker.solve_row(
+            copy,
+            name,
+            tol,
+            warm_start=warm_start,
+            time_limit=self.time_limit,
+            ref_u=inst.ref_u,
+        )
+        self.last = id(copy)
+        self._note(row)
+        return row
+
+    def _note(self, row: dict[str, Any]) -> None:
+        # A killed child is replaced by a fresh one: nothing is loaded there.
+        if str(row.get("note", "")).startswith(_KILLED):
+            self.warmed.clear()
+            self.last = None
+
+
+def _starts(inst: _Instance, name: str) -> list[str]:
+    """Cold always; warm only for a backend that uses a warm start, when there is one."""
+    if backends.get(name).warm_start and inst.warm_start is not None:
+        return list(_STARTS)
+    return ["cold"]
+
+
+def _timed_out(row: dict[str, Any], time_limit: float) -> bool:
+    wall = row.get("wall_s", np.nan)
+    return row.get("status") == "time_limit" or bool(np.isfinite(wall) and wall >= time_limit)
+
+
+def _skipped(name: str, why: str) -> dict[str, Any]:
+    row: dict[str, Any] = {c: np.nan for c in ROW_COLUMNS}
+    try:
+        formulation = backends.get(name).formulation
+    except CocdError:
+        formulation = ""
+    row.update(solver=name, formulation=formulation, status="skipped", polished=False, note=why)
+    return row
+
+
+def _describe(row: dict[str, Any]) -> str:
+    text = f"{row['problem']} {row['start']} {row['solver']} tol {row['tol']:g}: {row['status']}"
+    if np.isfinite(row.get("wall_s", np.nan)):
+        text += f", {row['wall_s']:.3g} s"
+    if np.isfinite(row.get("ccp_residual", np.nan)):
+        text += f", ccp {row['ccp_residual']:.2g}, u_error {row['u_error']:.2g}"
+    if row.get("note"):
+        text += f" ({row['note']})"
+    return text
+
+
+def _intro(instances: Sequence[_Instance], names: Sequence[str], time_limit: float) -> str:
+    lines = []
+    for inst in instances:
+        flag = (
+            ""
+            if inst.ref_ccp <= REFERENCE_OK
+            else f" (**worse than {REFERENCE_OK:g}**: u_error below about that is not meaningful)"
+        )
+        lines.append(
+            f"- `{inst.label}`: {inst.dim}D, N = {inst.n_free}, Nc = {inst.problem.nc}, "
+            f"dt = {inst.dt:g} s; reference {inst.ref_solver} at tol {REFERENCE_TOL:g}, "
+            f"ccp_residual {inst.ref_ccp:.2g}{flag}"
+        )
+    return (
+        "Time to reach `ccp_residual <= target` on each (problem, cold/warm start) instance: "
+        "the fastest run of the tolerance sweep that reached it. `sgm_s` is the shifted "
+        f"geometric mean over instances, shift {SGM_SHIFT:g} s; an instance not reached within "
+        f"the time limit ({time_limit:g} s) counts as the time limit, as does one a backend "
+        "cannot take. `sgm_rel` is over the best solver's (1.0). Backends without a warm start "
+        "count their cold runs on the warm instance. Each time is one run (not the best of "
+        "several), runs made one at a time."
+        + _nonconvex_note(names)
+        + " Problems:\n\n"
+        + "\n".join(lines)
+    )
+
+
+def _nonconvex_note(names: Sequence[str]) -> str:
+    other = [n for n in names if not backends.get(n).convex]
+    if not other:
+        return ""
+    return (
+        f" {', '.join(other)} solve{'s' if len(other) == 1 else ''} the non-convex Coulomb law, "
+        "another problem: their `ccp_residual` stops at the distance between the two answers "
+        "(their `coulomb_residual` is in `precision.csv`)."
+    )
+
+
+# -- plots --------------------------------------------------------------------
+def _plot_precision(
+    rows: pd.DataFrame,
+    inst: _Instance,
+    names: Sequence[str],
+    warm_capable: set[str],
+    out: Path,
+) -> Path:
+    """Wall time against ccp_residual (top) and u_error (bottom), cold and warm."""
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter
+
+    fig = Figure(figsize=(11, 8.5), layout="constrained")
+    axes = fig.subplots(2, 2, sharey=True)
+    data = rows[rows["problem"] == inst.label]
+    colours = _colours(names)
+    # Seconds read as plain numbers (0.2, 5), not 5 x 10^0; over more than a
+    # decade only 1, 2 and 5 of each, so that the labels do not overlap.
+    walls = data["wall_s"][data["wall_s"] > 0]
+    wide = walls.size > 0 and walls.max() > 10.0 * walls.min()
+    digits = (1, 2, 5) if wide else tuple(range(1, 10))
+    seconds = FuncFormatter(partial(_seconds_label, digits=digits))
+    for col, start in enumerate(_STARTS):
+        for row_k, error in enumerate(("ccp_residual", "u_error")):
+            ax = axes[row_k, col]
+            plotted = False
+            for name in names:
+                runs = data[(data["solver"] == name) & (data["start"] == start)]
+                runs = runs[np.isfinite(runs[error]) & (runs[error] > 0) & (runs["wall_s"] > 0)]
+                if runs.empty:
+                    continue
+                runs = runs.sort_values("tol", ascending=False)
+                borrowed = start == "warm" and name not in warm_capable
+                ax.plot(
+                    runs[error],
+                    runs["wall_s"],
+                    marker="o",
+                    markersize=4,
+                    linestyle="--" if borrowed else "-",
+                    markerfacecolor="none" if borrowed else colours[name],
+                    color=colours[name],
+                )
+                plotted = True
+            if error == "ccp_residual":
+                ax.set_title(f"{start} start")
+            if plotted:
+                ax.set_xscale("log")
+                ax.set_yscale("log")
+                ax.yaxis.set_major_formatter(seconds)
+                ax.yaxis.set_minor_formatter(seconds)
+                ax.grid(True, which="major", alpha=0.3)
+                if error == "ccp_residual":
+                    for target in TARGETS:
+                        ax.axvline(target, color="grey", linestyle=":", linewidth=0.8)
+            else:
+                # A log axis with nothing on it has no limits to draw.
+                ax.text(0.5, 0.5, "no answers", transform=ax.transAxes, ha="center")
+            ax.set_xlabel(f"{error} (log scale; left is more accurate)")
+            if col == 0:
+                ax.set_ylabel("wall time per solve (s, log scale)")
+    _legend(fig, names, colours, dashed="dashed, hollow: no warm start (its cold runs)")
+    fig.suptitle(
+        f"{inst.label}: {inst.dim}D, N = {inst.n_free}, Nc = {inst.problem.nc}, dt = {inst.dt:g} s "
+        f"(one point per tolerance; dotted: targets {', '.join(f'{t:g}' for t in TARGETS)})"
+    )
+    path = out / f"precision_{inst.label}.png"
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _plot_profiles(
+    costs: dict[float, FloatArray], names: Sequence[str], n_instances: int, out: Path
+) -> Path:
+    """One Dolan-Moré profile panel per target."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(4.6 * len(costs), 4.4), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(costs), sharey=True))
+    colours = _colours(names)
+    for ax, (target, c) in zip(axes, costs.items(), strict=True):
+        ratios = performance_ratios(c)
+        finite = ratios[np.isfinite(ratios)]
+        top = max(10.0, 2.0 * float(finite.max())) if finite.size else 10.0
+        taus = np.geomspace(1.0, top, 400)
+        profile = performance_profile(c, taus)
+        for s, name in enumerate(names):
+            ax.plot(taus, profile[:, s], drawstyle="steps-post", color=colours[name], lw=1.5)
+        ax.set_xscale("log")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_xlim(1.0, top)
+        ax.grid(True, alpha=0.3)
+        ax.set_title(f"ccp_residual <= {target:g} ({n_instances} instances)")
+        ax.set_xlabel("tau: time over the best solver's time (log scale)")
+    axes[0].set_ylabel("fraction of instances within tau of the best")
+    _legend(fig, names, colours)
+    fig.suptitle("Performance profiles (Dolan-Moré): higher and further left is better")
+    path = out / "precision_profile.png"
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _seconds_label(value: float, _pos: object = None, *, digits: Sequence[int] = (1, 2, 5)) -> str:
+    """``value`` as ``%g`` when its leading digit is one of ``digits``, else no label."""
+    if not value > 0:
+        return ""
+    leading = value / 10.0 ** math.floor(math.log10(value) + 1e-9)
+    return f"{value:g}" if min(abs(leading - k) for k in digits) < 1e-6 else ""
+
+
+def _legend(fig: Any, names: Sequence[str], colours: dict[str, Any], dashed: str = "") -> None:
+    """One legend for every panel, under them, so that it hides no curve."""
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=colours[n], marker="o", markersize=4) for n in names]
+    labels = list(names)
+    if dashed:
+        handles.append(
+            Line2D([], [], color="black", linestyle="--", marker="o", markerfacecolor="none")
+        )
+        labels.append(dashed)
+    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 6), fontsize=9)
+
+
+def _colours(names: Sequence[str]) -> dict[str, Any]:
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10" if len(names) <= 10 else "tab20"]
+    return {name: cmap(k % cmap.N) for k, name in enumerate(names)}
