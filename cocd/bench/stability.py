@@ -1,0 +1,582 @@
+"""``cocd bench stability``: does a box of grains at rest stay at rest? (the seed's Fig. 3).
+
+A box of grains is settled by rain deposition (:func:`cocd.builders.static_box`,
+cached on disk), its velocities set to zero, and then advanced by every backend
+at every tolerance ``eps`` for ``t_end`` units of ``T = sqrt(H / g)``, ``H``
+being the height of the packing (the top of the highest grain above the
+floor). A solver that answers each step accurately enough keeps the packing
+still: the ratio of kinetic to total energy ``Ek / (Ek + Ep)`` stays tiny.
+An inaccurate answer injects spurious velocities, and the packing creeps or
+flows. The seed finds the box stays at rest for ``eps <= 1e-3`` and not above
+(Mosek, 110 233 spheres).
+
+``Ep`` is the gravitational potential energy of the free grains measured from
+the floor (the wall whose normal points against gravity; the lowest grain's
+bottom when there is no such wall), so ``Ep > 0`` and the ratio lies in
+``[0, 1)``: measured from the origin, as :func:`cocd.measure.potential_energy`
+does, ``Ep`` would depend on where the box sits.
+
+Each (solver, eps) run is isolated in a child process by default
+(``multiprocessing`` spawn): the child streams one message per step, so a
+native crash or a backend that hangs past its time limit costs that run only
+(its partial series is kept and its summary row says what happened), never
+the whole command. Spawning costs about one to two seconds per run, small
+against the runs themselves. A Python exception from the backend
+(:class:`~cocd.errors.SolverError` when a step has no answer, or anything the
+backend raises) ends the run the same way, in the child or in process.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import queue as queue_mod
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from cocd.bench import report, select_solvers
+from cocd.builders import static_box
+from cocd.errors import CocdError
+from cocd.scene import Scene
+
+__all__ = ["SERIES_COLUMNS", "SUMMARY_COLUMNS", "floor_reference", "run"]
+
+FloatArray = NDArray[np.float64]
+
+#: Columns of ``stability.csv``, one row per step of every run.
+SERIES_COLUMNS = [
+    "solver",
+    "eps",
+    "step",
+    "t_over_T",
+    "energy_ratio",
+    "iterations",
+    "solve_s",
+    "ccp_residual",
+]
+
+#: Columns of ``stability_summary.csv``, one row per (solver, eps).
+SUMMARY_COLUMNS = [
+    "solver",
+    "dim",
+    "N",
+    "dt",
+    "eps",
+    "steps_done",
+    "steps_asked",
+    "max_energy_ratio",
+    "final_energy_ratio",
+    "at_rest",
+    "mean_iterations",
+    "mean_time_per_step_s",
+    "max_ccp_residual",
+    "note",
+]
+
+#: Seconds allowed on top of ``1.5 time_limit`` between two messages of a child
+#: (its start-up, the imports and the first contact detection included) before
+#: it is killed as hung.
+GRACE_S = 60.0
+
+#: Seconds between two progress lines inside one run (slow backends on big boxes).
+PROGRESS_S = 30.0
+
+
+def run(
+    *,
+    solvers: str | list[str] | None,
+    eps_list: list[float],
+    n: int,
+    dim: int,
+    t_end: float,
+    dt: float,
+    threshold: float,
+    time_limit: float | None,
+    out: Path,
+    progress: Callable[[str], Any] = print,
+    isolate: bool = True,
+    grace: float = GRACE_S,
+) -> pd.DataFrame:
+    """Run the stability test and write its tables, plot and provenance under ``out``.
+
+    Parameters
+    ----------
+    solvers : str, list of str or None
+        Backends (comma-separated names or a list); None for the harness's
+        default set (:func:`cocd.bench.select_solvers`). Backends that cannot
+        handle ``dim`` are left out.
+    eps_list : list of float
+        Tolerances asked of every backend, each > 0.
+    n : int
+        Number of grains in the box, >= 1.
+    dim : {2, 3}
+        Discs in a 2D box or spheres in a 3D box.
+    t_end : float
+        Duration in units of ``T = sqrt(H / g)``, > 0; the run takes
+        ``ceil(t_end T / dt)`` steps.
+    dt : float
+        Time step (s), > 0.
+    threshold : float
+        The box counts as at rest while ``Ek / (Ek + Ep)`` stays below this, > 0.
+    time_limit : float or None
+        Seconds per solve passed to the backend; a child that sends no step for
+        ``1.5 time_limit + grace`` seconds is killed. None: no limit.
+    out : Path
+        Output directory.
+    progress : callable
+        Receives one line of text per run (default :func:`print`).
+    isolate : bool
+        Run each (solver, eps) in a child process (default). ``False`` runs in
+        this process: faster for tiny runs, but a native crash ends the command.
+    grace : float
+        Seconds added to the watchdog of isolated runs.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The summary, columns :data:`SUMMARY_COLUMNS`. ``at_rest`` is True when
+        every asked step was taken and the largest ratio is below
+        ``threshold``; a run that failed is never at rest (its ``note`` says
+        why and at which step).
+
+    Raises
+    ------
+    CocdError
+        Invalid arguments, unknown solver names
+        (:class:`~cocd.errors.SolverNotFound`), or no named solver handles
+        ``dim``.
+    """
+    eps_values = _check(eps_list, n, dim, t_end, dt, threshold, time_limit, grace)
+    names = select_solvers(solvers, dim)
+    if not names:
+        raise CocdError(f"none of the solvers {solvers!r} handles {dim}D problems")
+    out = Path(out)
+
+    progress(f"stability: settling a {dim}D box of {n} grains (rain deposition, cached)")
+    start = time.perf_counter()
+    scene = static_box(dim, n_grains=int(n))
+    x0, up = floor_reference(scene)
+    free = scene.free
+    heights = (scene.positions[free] - x0) @ up
+    height = float(np.max(heights + scene.radii[free]))
+    g = float(np.linalg.norm(scene.gravity))
+    period = math.sqrt(height / g)
+    n_steps = max(1, math.ceil(t_end * period / dt - 1e-9))
+    # Ep from the floor = Ep from the origin (what the stepper records) + this shift.
+    ep_shift = float(np.sum(scene.masses[free]) * (x0 @ scene.gravity))
+    progress(
+        f"stability: N = {scene.n_free}, H = {height:.4g} m, T = sqrt(H/g) = {period:.4g} s, "
+        f"{n_steps} steps of {dt:g} s to t = {t_end:g} T "
+        f"({time.perf_counter() - start:.1f} s to prepare)"
+    )
+
+    series: list[dict[str, Any]] = []
+    summary: list[dict[str, Any]] = []
+    runs = [(s, e) for s in names for e in eps_values]
+    for k, (solver, eps) in enumerate(runs, 1):
+        args = (scene.copy(), solver, eps, dt, n_steps, time_limit, ep_shift, period)
+        t0 = time.perf_counter()
+        on_step = _ticker(progress, f"[{k}/{len(runs)}] {solver} eps={eps:.0e}", n_steps)
+        if isolate:
+            steps, note = _run_isolated(args, time_limit, grace, on_step)
+        else:
+            steps, note = _run_here(args, on_step)
+        wall = time.perf_counter() - t0
+        series += [{c: s[c] for c in SERIES_COLUMNS} for s in steps]
+        row = _summary_row(steps, note, solver, eps, dim, scene.n_free, dt, n_steps, threshold)
+        summary.append(row)
+        verdict = "at rest" if row["at_rest"] else "NOT at rest"
+        failed = f"; {row['note']}" if row["note"] else ""
+        progress(
+            f"[{k}/{len(runs)}] {solver} eps={eps:.0e}: {row['steps_done']}/{n_steps} steps, "
+            f"max Ek/E = {row['max_energy_ratio']:.3g} -> {verdict} ({wall:.1f} s){failed}"
+        )
+
+    table = pd.DataFrame(summary, columns=SUMMARY_COLUMNS)
+    steps_table = pd.DataFrame(series, columns=SERIES_COLUMNS)
+    files = _write(out, table, steps_table, threshold, dim, scene.n_free, height, period, dt)
+    progress(f"stability: wrote {', '.join(str(f) for f in files)}")
+    return table
+
+
+def floor_reference(scene: Scene) -> tuple[FloatArray, FloatArray]:
+    """A point of the floor and the unit vector up (against gravity).
+
+    The floor is the wall whose normal is closest to ``up`` (within 1e-6 of
+    it); without one, the plane through the lowest point of the free grains.
+    """
+    g = np.asarray(scene.gravity, dtype=np.float64)
+    norm = float(np.linalg.norm(g))
+    if norm == 0.0:
+        raise CocdError("the stability test needs gravity, and the scene has none")
+    up = -g / norm
+    best = None
+    for wall in scene.walls:
+        align = float(np.asarray(wall.normal) @ up)
+        if align > 1.0 - 1e-6 and (best is None or align > best[0]):
+            best = (align, np.asarray(wall.point, dtype=np.float64))
+    if best is not None:
+        return best[1].copy(), up
+    free = scene.free
+    low = int(np.argmin(scene.positions[free] @ up - scene.radii[free]))
+    point = scene.positions[free][low] - scene.radii[free][low] * up
+    return np.asarray(point, dtype=np.float64), up
+
+
+# -- one run ---------------------------------------------------------------------
+RunArgs = tuple[Scene, str, float, float, int, float | None, float, float]
+
+
+def _trajectory(
+    scene: Scene,
+    solver: str,
+    eps: float,
+    dt: float,
+    n_steps: int,
+    time_limit: float | None,
+    ep_shift: float,
+    period: float,
+) -> Iterator[dict[str, Any]]:
+    """Step the box; yield one ``step`` event per step, then ``done`` or ``error``."""
+    from cocd.stepper import Stepper
+
+    try:
+        stepper = Stepper(scene, dt, solver=solver, tol=eps, time_limit=time_limit)
+        for _ in range(n_steps):
+            rec = stepper.step()
+            ek = rec.kinetic_energy
+            ep = rec.potential_energy + ep_shift
+            yield {
+                "kind": "step",
+                "solver": solver,
+                "eps": eps,
+                "step": rec.step,
+                "t_over_T": rec.t / period,
+                "energy_ratio": ek / (ek + ep) if ek + ep > 0.0 else float("nan"),
+                "iterations": rec.iterations,
+                "solve_s": rec.setup_time + rec.solve_time,
+                "ccp_residual": rec.ccp_residual,
+                "status": rec.status,
+            }
+    except Exception as exc:  # any backend failure ends this run, not the command
+        yield {"kind": "error", "note": f"{type(exc).__name__}: {str(exc)[:300]}"}
+        return
+    yield {"kind": "done"}
+
+
+def _ticker(
+    progress: Callable[[str], Any], label: str, n_steps: int
+) -> Callable[[dict[str, Any]], None]:
+    """A per-step callback that prints a line at most every :data:`PROGRESS_S` seconds."""
+    every = PROGRESS_S
+    start = time.perf_counter()
+    last = [start]
+
+    def tick(event: dict[str, Any]) -> None:
+        now = time.perf_counter()
+        if now - last[0] >= every and event["step"] < n_steps:
+            last[0] = now
+            progress(
+                f"{label}: step {event['step']}/{n_steps}, t/T = {event['t_over_T']:.2f}, "
+                f"Ek/E = {event['energy_ratio']:.3g}, {event['iterations']} iterations, "
+                f"{(now - start) / event['step']:.3g} s/step"
+            )
+
+    return tick
+
+
+def _run_here(
+    args: RunArgs, on_step: Callable[[dict[str, Any]], None]
+) -> tuple[list[dict[str, Any]], str]:
+    """Run in this process; the steps taken and a note (empty when all went well)."""
+    steps: list[dict[str, Any]] = []
+    for event in _trajectory(*args):
+        if event["kind"] == "step":
+            steps.append(event)
+            on_step(event)
+        elif event["kind"] == "error":
+            return steps, str(event["note"])
+    return steps, ""
+
+
+def _child(args: RunArgs, answers: Any) -> None:
+    """Child process: stream the trajectory's events to the parent."""
+    for event in _trajectory(*args):
+        answers.put(event)
+
+
+def _run_isolated(
+    args: RunArgs,
+    time_limit: float | None,
+    grace: float,
+    on_step: Callable[[dict[str, Any]], None],
+) -> tuple[list[dict[str, Any]], str]:
+    """Run in a spawned child; a crash or a silence longer than the watchdog ends the run."""
+    ctx = mp.get_context("spawn")
+    answers = ctx.Queue()
+    proc = ctx.Process(target=_child, args=(args, answers), daemon=True)
+    limit = math.inf if time_limit is None else 1.5 * time_limit + grace
+    steps: list[dict[str, Any]] = []
+    note = ""
+    finished = False
+    proc.start()
+    try:
+        last = time.perf_counter()
+        while True:
+            try:
+                event = answers.get(timeout=min(1.0, max(limit, 0.01)))
+            except queue_mod.Empty:
+                silent = time.perf_counter() - last
+                if not proc.is_alive():
+                    # A child that died may have left messages in the pipe.
+                    drained = _drain(answers)
+                    steps += [e for e in drained if e["kind"] == "step"]
+                    ended = [e for e in drained if e["kind"] != "step"]
+                    if ended:
+                        note = str(ended[0].get("note", ""))
+                    else:
+                        code = proc.exitcode
+                        how = f"signal {-code}" if code is not None and code < 0 else f"code {code}"
+                        note = f"child process died ({how}) after step {len(steps)}"
+                    break
+                if silent > limit:
+                    note = (
+                        f"killed: no answer for {silent:.0f} s after step {len(steps)} "
+                        f"(limit 1.5 x time_limit + {grace:g} s)"
+                    )
+                    break
+                continue
+            last = time.perf_counter()
+            if event["kind"] == "step":
+                steps.append(event)
+                on_step(event)
+            else:
+                note = str(event.get("note", ""))
+                finished = True
+                break
+    finally:
+        # A child that said it is done exits by itself; any other is killed now
+        # (hung, or the parent is being interrupted).
+        if finished:
+            proc.join(timeout=5.0)
+        if proc.is_alive():
+            proc.kill()
+        proc.join()
+        answers.close()
+    return steps, note
+
+
+def _drain(answers: Any) -> list[dict[str, Any]]:
+    events = []
+    while True:
+        try:
+            events.append(answers.get(timeout=0.2))
+        except queue_mod.Empty:
+            return events
+
+
+def _summary_row(
+    steps: list[dict[str, Any]],
+    note: str,
+    solver: str,
+    eps: float,
+    dim: int,
+    n_free: int,
+    dt: float,
+    n_steps: int,
+    threshold: float,
+) -> dict[str, Any]:
+    ratio = np.array([s["energy_ratio"] for s in steps], dtype=np.float64)
+    done = len(steps)
+    inaccurate = sum(s["status"] != "optimal" for s in steps)
+    notes = [note] if note else []
+    if inaccurate:
+        notes.append(f"{inaccurate} inaccurate step{'s' if inaccurate > 1 else ''}")
+
+    def stat(values: list[float], how: Callable[[FloatArray], Any]) -> float:
+        return float(how(np.array(values, dtype=np.float64))) if values else float("nan")
+
+    max_ratio = float(np.max(ratio)) if done else float("nan")
+    ccp = [s["ccp_residual"] for s in steps if np.isfinite(s["ccp_residual"])]
+    return {
+        "solver": solver,
+        "dim": dim,
+        "N": n_free,
+        "dt": dt,
+        "eps": eps,
+        "steps_done": done,
+        "steps_asked": n_steps,
+        "max_energy_ratio": max_ratio,
+        "final_energy_ratio": float(ratio[-1]) if done else float("nan"),
+        # A run that stopped early did not show that the box stays at rest.
+        "at_rest": bool(done == n_steps and not note and max_ratio < threshold),
+        "mean_iterations": stat([s["iterations"] for s in steps], np.mean),
+        "mean_time_per_step_s": stat([s["solve_s"] for s in steps], np.mean),
+        "max_ccp_residual": stat(ccp, np.max),
+        "note": "; ".join(notes),
+    }
+
+
+# -- checks and outputs ----------------------------------------------------------
+def _check(
+    eps_list: list[float],
+    n: int,
+    dim: int,
+    t_end: float,
+    dt: float,
+    threshold: float,
+    time_limit: float | None,
+    grace: float,
+) -> list[float]:
+    """Validate the arguments; the tolerances as floats."""
+    if dim not in (2, 3):
+        raise CocdError(f"dim must be 2 or 3, got {dim!r}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise CocdError(f"n (the number of grains) must be an integer >= 1, got {n!r}")
+    try:
+        eps_values = [float(e) for e in eps_list]
+    except (TypeError, ValueError):
+        raise CocdError(f"eps_list must be a list of numbers, got {eps_list!r}") from None
+    if not eps_values:
+        raise CocdError("eps_list is empty: give at least one tolerance")
+    bad = [e for e in eps_values if not (math.isfinite(e) and e > 0.0)]
+    if bad:
+        raise CocdError(f"every eps must be finite and > 0, got {bad}")
+    for name, value in (("t_end", t_end), ("dt", dt), ("threshold", threshold)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+            raise CocdError(f"{name} must be a finite number > 0, got {value!r}")
+    if time_limit is not None and not (time_limit > 0.0):
+        raise CocdError(f"time_limit must be > 0 (or None for no limit), got {time_limit!r}")
+    if not (grace >= 0.0):
+        raise CocdError(f"grace must be >= 0, got {grace!r}")
+    return eps_values
+
+
+def _write(
+    out: Path,
+    table: pd.DataFrame,
+    steps: pd.DataFrame,
+    threshold: float,
+    dim: int,
+    n_free: int,
+    height: float,
+    period: float,
+    dt: float,
+) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    series_path = out / "stability.csv"
+    steps.to_csv(series_path, index=False)
+    shape = "discs in a 2D box" if dim == 2 else "spheres in a 3D box"
+    intro = (
+        f"{n_free} {shape}, settled by rain deposition and released at rest; "
+        f"packing height H = {height:.4g} m, T = sqrt(H/g) = {period:.4g} s, dt = {dt:g} s. "
+        f"`at_rest`: every asked step was taken and the ratio of kinetic to total energy "
+        f"Ek / (Ek + Ep), with Ep measured from the floor, stayed below the threshold "
+        f"**{threshold:g}**. Time per step is the backend's own set-up plus solve time; "
+        f"`max_ccp_residual` is the framework's residual (the same for every backend). "
+        f"The seed (Fig. 3, Mosek, 110 233 spheres) keeps the box at rest for eps <= 1e-3."
+    )
+    files = report.write_table(
+        out,
+        "stability_summary",
+        table,
+        title="Stability: a box at rest stays at rest (Fig. 3)",
+        intro=intro,
+    )
+    png = out / "stability.png"
+    _plot(png, table, steps, threshold, dim, n_free)
+    files = [series_path, *files, png]
+    report.write_meta(
+        out,
+        "stability",
+        title="Stability: a box at rest stays at rest (Fig. 3)",
+        files=files,
+        summary=_verdicts(table, threshold),
+    )
+    return [*files, out / "stability.meta.json"]
+
+
+def _verdicts(table: pd.DataFrame, threshold: float) -> str:
+    """A Markdown pivot: solver x eps, 'yes' / 'no' (max ratio) or 'failed at step k'."""
+    if table.empty:
+        return "No run."
+
+    def cell(row: pd.Series) -> str:
+        if row["note"] and row["steps_done"] < row["steps_asked"]:
+            return f"failed at step {int(row['steps_done']) + 1}"
+        word = "yes" if row["at_rest"] else "no"
+        return f"{word} ({row['max_energy_ratio']:.1e})"
+
+    cells = table.assign(
+        verdict=table.apply(cell, axis=1), eps_label=table["eps"].map(lambda e: f"{e:.0e}")
+    )
+    order = list(dict.fromkeys(cells["eps_label"]))
+    pivot = cells.pivot(index="solver", columns="eps_label", values="verdict")
+    pivot = pivot.reindex(index=list(dict.fromkeys(cells["solver"])), columns=order)
+    pivot.columns.name = None
+    text = pivot.reset_index().to_markdown(index=False)
+    return (
+        f"At rest (max Ek / (Ek + Ep) over the run below {threshold:g}; "
+        f"in brackets the max ratio), per solver and eps:\n\n{text}"
+    )
+
+
+def _plot(
+    path: Path,
+    table: pd.DataFrame,
+    steps: pd.DataFrame,
+    threshold: float,
+    dim: int,
+    n_free: int,
+) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib import colors
+    from matplotlib.lines import Line2D
+
+    names = list(dict.fromkeys(table["solver"])) or ["(none)"]
+    eps_all = sorted(set(table["eps"])) or [1.0]
+    ncols = min(3, len(names))
+    nrows = math.ceil(len(names) / ncols)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(4.2 * ncols, 3.2 * nrows), squeeze=False, sharey=True
+    )
+    norm = colors.LogNorm(vmin=min(eps_all), vmax=max(eps_all) * (1.0 + 1e-12))
+    cmap = plt.get_cmap("viridis")
+    for ax, name in zip(axes.flat, names, strict=False):
+        for eps in eps_all:
+            part = steps[(steps["solver"] == name) & (steps["eps"] == eps)]
+            if part.empty:
+                continue
+            # The log axis cannot show an exact zero; such points are masked.
+            y = part["energy_ratio"].to_numpy(dtype=np.float64)
+            y = np.where(y > 0.0, y, np.nan)
+            ax.plot(part["t_over_T"], y, color=cmap(norm(eps)), lw=1.2)
+            row = table[(table["solver"] == name) & (table["eps"] == eps)]
+            if not row.empty and row["steps_done"].iloc[0] < row["steps_asked"].iloc[0]:
+                ax.plot(part["t_over_T"].iloc[-1], y[-1], "x", color=cmap(norm(eps)), ms=7)
+        ax.axhline(threshold, color="crimson", ls="--", lw=1.0)
+        ax.set_yscale("log")
+        ax.set_title(name)
+        ax.set_xlabel("t / sqrt(H/g)")
+        ax.grid(True, which="major", alpha=0.3)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("Ek / (Ek + Ep)")
+    for ax in list(axes.flat)[len(names) :]:
+        ax.set_visible(False)
+    # One legend for all panels, with every eps even if a panel lacks a curve.
+    handles = [Line2D([], [], color=cmap(norm(e)), label=f"{e:.0e}") for e in eps_all]
+    handles.append(Line2D([], [], color="crimson", ls="--", label="threshold"))
+    fig.legend(handles=handles, title="eps", loc="center right", fontsize=8)
+    fig.suptitle(f"Box at rest, {n_free} grains in {dim}D (x: run ended early)")
+    fig.tight_layout(rect=(0.0, 0.0, 0.9, 1.0))
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
