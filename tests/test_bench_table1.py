@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from cocd.bench import table1
+from cocd.bench import runner, table1
 from cocd.bench.states import StepSequence
 from cocd.cli import app
 from cocd.errors import CocdError
@@ -157,7 +157,7 @@ class FakeWorker:
 
 def test_table1_3d_time_limit_skips_tighter_eps(tmp_path, cache, monkeypatch):
     # A fake trajectory and worker: the 3D bookkeeping without a 3D simulation.
-    problem = table1._warmup_problem(3, 1e-2)
+    problem = runner.warmup_problem(3, 1e-2)
 
     def fake_record(label, make, *, dt, t_start, n_steps, solver, tol, progress):
         assert (dt, t_start, solver, tol) == (1e-2, 1.0, "scs-dual", 1e-8)

@@ -66,7 +66,7 @@ from numpy.typing import ArrayLike, NDArray
 import solvers as backends
 from cocd.bench import select_solvers
 from cocd.bench.report import write_meta, write_table
-from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb
+from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
 from cocd.builders import box_3d, column_2d
 from cocd.errors import CocdError
@@ -381,7 +381,7 @@ def run(
             progress(f"{case.label}: no selected solver handles {case.dim}D problems, skipped")
             continue
         instances.append(_instance(case, progress))
-        warmups[case.dim] = _warmup_problem(case.dim)
+        warmups[case.dim] = warmup_problem(case.dim)
 
     rows: list[dict[str, Any]] = []
     plan = [(i, n, s) for i in instances for n in chosen[i.label] for s in _starts(i, n)]
@@ -583,19 +583,6 @@ def _pristine(problem: ConicProblem) -> ConicProblem:
         dt=problem.dt,
         U=problem.U.copy(),
     )
-
-
-def _warmup_problem(dim: int) -> ConicProblem:
-    """A tiny problem of dimension ``dim`` to load a backend's code before it is timed."""
-    if dim == 2:
-        seq = record_steps(
-            "precision-warmup-2d", partial(column_2d, 12), dt=1e-3, t_start=0.003, n_steps=1
-        )
-    else:
-        seq = record_steps(
-            "precision-warmup-3d", partial(box_3d, 8), dt=1e-2, t_start=0.02, n_steps=1
-        )
-    return seq.problems[-1]
 
 
 class _Jobs:

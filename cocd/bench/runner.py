@@ -34,7 +34,7 @@ import solvers
 from cocd.problem import ConicProblem
 from cocd.residuals import residuals
 
-__all__ = ["ROW_COLUMNS", "Worker", "solve_row", "u_error"]
+__all__ = ["ROW_COLUMNS", "Worker", "solve_row", "u_error", "warmup_problem"]
 
 FloatArray = NDArray[np.float64]
 
@@ -53,6 +53,17 @@ ROW_COLUMNS = [
     "polished",
     "note",
 ]
+
+
+def warmup_problem(dim: int, dt: float = 1e-3) -> ConicProblem:
+    """Three grains stacked on the floor: a tiny frictional problem that loads a
+    backend's code (imports, compiled kernels) before it is timed."""
+    from cocd.builders import stack
+    from cocd.contacts import detect_contacts
+    from cocd.problem import assemble
+
+    scene = stack(3, dim=dim, mu=0.3)
+    return assemble(scene, detect_contacts(scene), dt)
 
 
 def u_error(problem: ConicProblem, u: FloatArray, ref_u: FloatArray) -> float:

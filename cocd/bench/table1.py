@@ -36,12 +36,10 @@ import pandas as pd
 import solvers
 from cocd.bench import select_solvers
 from cocd.bench.report import write_meta, write_table
-from cocd.bench.runner import Worker, default_memory_gb
+from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
-from cocd.builders import column_2d, column_collapse, stack
-from cocd.contacts import detect_contacts
+from cocd.builders import column_2d, column_collapse
 from cocd.errors import CocdError
-from cocd.problem import ConicProblem, assemble
 from cocd.scene import Scene
 
 __all__ = ["COLUMNS", "SEED_ROWS", "run"]
@@ -265,7 +263,7 @@ def _case(
     base["Nc"] = nc
     rows: dict[tuple[float, str], dict[str, Any]] = {}
     # Kept alive while the worker uses it (the worker keys problems by identity).
-    warmup = _warmup_problem(dim, dt)
+    warmup = warmup_problem(dim, dt)
     with Worker(memory_gb=memory_gb) as worker:
         for name in names:
             # Loosest eps first: a backend out of time there would be at a tighter eps too.
@@ -321,12 +319,6 @@ def _solver_rows(
             # The first problem is like the others: the rest would fail the same way.
             break
     return _summarise(answers, total, warm)
-
-
-def _warmup_problem(dim: int, dt: float) -> ConicProblem:
-    """Three grains stacked on the floor: a frictional problem of the case's dimension."""
-    scene = stack(3, dim=dim, mu=MU_3D)
-    return assemble(scene, detect_contacts(scene), dt)
 
 
 def _takes_warm_start(name: str, seq: StepSequence) -> bool:
