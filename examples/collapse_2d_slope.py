@@ -52,6 +52,7 @@ def main() -> None:
     parser.add_argument("--bed-length", type=float, default=2.5)
     parser.add_argument("--rest", type=float, default=1e-6)
     parser.add_argument("--out", default="results")
+    parser.add_argument("--name", default="collapse_2d_slope", help="prefix of the files written")
     args = parser.parse_args()
 
     scene = cocd.column_collapse(
@@ -74,6 +75,7 @@ def main() -> None:
     profiles = {0.0: mass_profile(scene, x_bins=x_bins, mask=column)}
     pe0 = _potential(scene, column)
     times, fronts = [0.0], [front_position(scene, mask=column)]
+    eks = [kinetic_energy(scene)]
     start = time.perf_counter()
     released, ek = 0.0, float("inf")
     while scene.time < args.t_max:
@@ -84,6 +86,7 @@ def main() -> None:
         # Isolated grains roll down the slope for ever (rolling dissipates nothing
         # in this model): rest is judged on the main connected mass only.
         ek = kinetic_energy(_subset(scene, main_mass(scene, mask=column)))
+        eks.append(ek)
         if stepper.step_count % 50 == 0:
             print(
                 f"t = {scene.time:.3f} s  front {fronts[-1]:.4f} m  Ek {ek:.3e}  "
@@ -92,14 +95,14 @@ def main() -> None:
                 flush=True,
             )
         if stepper.step_count % 250 == 0:  # a failed long run keeps its front so far
-            _write_front(out, times, fronts)
+            _write_front(out / f"{args.name}_front.csv", times, fronts, eks)
         if scene.time >= args.t_mid and len(profiles) == 1:
             profiles[round(scene.time, 3)] = mass_profile(scene, x_bins=x_bins, mask=column)
         if scene.time > 0.05 and released > 0 and ek < args.rest * released:
             break
     profiles[round(scene.time, 3)] = mass_profile(scene, x_bins=x_bins, mask=column)
 
-    _write_front(out, times, fronts)
+    _write_front(out / f"{args.name}_front.csv", times, fronts, eks)
 
     fig, ax = plt.subplots(figsize=(8, 3.2))
     for t, prof in profiles.items():
@@ -111,7 +114,7 @@ def main() -> None:
     )
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "collapse_2d_slope_profiles.png", dpi=120)
+    fig.savefig(out / f"{args.name}_profiles.png", dpi=120)
 
     fig, ax = plt.subplots(figsize=(6, 3.2))
     ax.plot(times, np.array(fronts) - r0)
@@ -119,7 +122,7 @@ def main() -> None:
     ax.set_ylabel("r_f - R0 (m)")
     ax.set_title("Front position")
     fig.tight_layout()
-    fig.savefig(out / "collapse_2d_slope_front.png", dpi=120)
+    fig.savefig(out / f"{args.name}_front.png", dpi=120)
 
     runout = (fronts[-1] - r0) / r0
     at_rest = ek < args.rest * released
@@ -133,17 +136,16 @@ def main() -> None:
     print(summary)
     write_meta(
         out,
-        "collapse_2d_slope",
+        args.name,
         title=f"A 2D collapse on a {args.slope:g} degree slope",
-        files=[out / f"collapse_2d_slope_{k}" for k in ("profiles.png", "front.png", "front.csv")],
+        files=[out / f"{args.name}_{k}" for k in ("profiles.png", "front.png", "front.csv")],
         summary=summary,
     )
 
 
-def _write_front(out: Path, times: list[float], fronts: list[float]) -> None:
-    pd.DataFrame({"t": times, "front": fronts}).to_csv(
-        out / "collapse_2d_slope_front.csv", index=False
-    )
+def _write_front(path: Path, times: list[float], fronts: list[float], eks: list[float]) -> None:
+    """t, front position r_f and the main mass's kinetic energy (J/m) per step."""
+    pd.DataFrame({"t": times, "front": fronts, "ek_main": eks}).to_csv(path, index=False)
 
 
 def _subset(scene: cocd.Scene, mask: np.ndarray) -> cocd.Scene:

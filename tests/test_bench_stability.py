@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pandas as pd
@@ -167,6 +168,33 @@ def test_backend_failure_is_a_row(tmp_path, monkeypatch):
     assert any("clarabel eps=1e-08: step 2/" in line for line in lines)
 
 
+def test_run_budget_stops_a_slow_run(tmp_path, monkeypatch):
+    """A run that spends its wall-time budget keeps its steps and is not at rest."""
+    real = solvers.solve
+
+    def slow(*args, **kwargs):
+        time.sleep(0.2)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(solvers, "solve", slow)
+    table = stability.run(
+        solvers="clarabel",
+        eps_list=[1e-8],
+        out=tmp_path,
+        progress=lambda _: None,
+        isolate=False,
+        run_budget=0.3,
+        **BASE,
+    )
+    row = _row(table, "clarabel", 1e-8)
+    assert 1 <= row["steps_done"] < row["steps_asked"]
+    assert row["note"].startswith("run budget of 0.3 s") and not row["at_rest"]
+    meta = json.loads((tmp_path / "stability.meta.json").read_text())
+    assert f"budget spent at step {row['steps_done']}" in meta["summary"]
+    with pytest.raises(CocdError, match="run_budget"):
+        stability.run(solvers="clarabel", eps_list=[1e-8], out=tmp_path, run_budget=0.0, **BASE)
+
+
 def test_child_failure_and_hang_are_rows(tmp_path):
     """In a child process: a backend error is a row; so is a child killed by the watchdog."""
     # A microsecond per solve: clarabel stops with status time_limit at step 1.
@@ -195,7 +223,7 @@ def test_child_failure_and_hang_are_rows(tmp_path):
 
 def test_cli_end_to_end(tmp_path):
     args = ["bench", "stability", "--n", "30", "--dim", "2", "--solvers", "clarabel"]
-    args += ["--eps-list", "1e-8", "--t-end", "0.5", "--out", str(tmp_path)]
+    args += ["--eps-list", "1e-8", "--t-end", "0.5", "--run-budget", "600", "--out", str(tmp_path)]
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 0, res.output
     table = pd.read_csv(tmp_path / "stability_summary.csv")

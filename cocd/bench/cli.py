@@ -104,6 +104,13 @@ def stability(
         typer.Option("--threshold", help="At rest while Ek / (Ek + Ep) stays below this."),
     ] = 1e-6,
     time_limit: TimeLimit = 600.0,
+    run_budget: Annotated[
+        float | None,
+        typer.Option(
+            "--run-budget",
+            help="Wall seconds per (solver, eps) run; a run that spends them stops, not at rest.",
+        ),
+    ] = None,
     out: Out = Path("results"),
 ) -> None:
     """The seed's Fig. 3: does a box at rest stay at rest, for each solver and eps?"""
@@ -120,6 +127,7 @@ def stability(
             threshold=threshold,
             time_limit=time_limit,
             out=out,
+            run_budget=run_budget,
         )
     except CocdError as exc:
         _fail(exc)

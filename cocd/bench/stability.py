@@ -79,6 +79,9 @@ SUMMARY_COLUMNS = [
     "note",
 ]
 
+#: How a run stopped by its wall-time budget is noted.
+BUDGET_NOTE = "run budget"
+
 #: Seconds allowed on top of ``1.5 time_limit`` between two messages of a child
 #: (its start-up, the imports and the first contact detection included) before
 #: it is killed as hung.
@@ -102,6 +105,7 @@ def run(
     progress: Callable[[str], Any] = print,
     isolate: bool = True,
     grace: float = GRACE_S,
+    run_budget: float | None = None,
 ) -> pd.DataFrame:
     """Run the stability test and write its tables, plot and provenance under ``out``.
 
@@ -136,6 +140,10 @@ def run(
         this process: faster for tiny runs, but a native crash ends the command.
     grace : float
         Seconds added to the watchdog of isolated runs.
+    run_budget : float or None
+        Wall seconds allowed to one (solver, eps) run; a run that spends them
+        is stopped where it is, keeps the steps it took and is not at rest
+        (its ``note`` says so). None: no budget.
 
     Returns
     -------
@@ -153,6 +161,9 @@ def run(
         ``dim``.
     """
     eps_values = _check(eps_list, n, dim, t_end, dt, threshold, time_limit, grace)
+    if run_budget is not None and not (run_budget > 0.0):
+        raise CocdError(f"run_budget must be > 0 (or None for no budget), got {run_budget!r}")
+    budget = math.inf if run_budget is None else float(run_budget)
     names = select_solvers(solvers, dim)
     if not names:
         raise CocdError(f"none of the solvers {solvers!r} handles {dim}D problems")
@@ -184,9 +195,9 @@ def run(
         t0 = time.perf_counter()
         on_step = _ticker(progress, f"[{k}/{len(runs)}] {solver} eps={eps:.0e}", n_steps)
         if isolate:
-            steps, note = _run_isolated(args, time_limit, grace, on_step)
+            steps, note = _run_isolated(args, time_limit, grace, on_step, budget)
         else:
-            steps, note = _run_here(args, on_step)
+            steps, note = _run_here(args, on_step, budget)
         wall = time.perf_counter() - t0
         series += [{c: s[c] for c in SERIES_COLUMNS} for s in steps]
         row = _summary_row(steps, note, solver, eps, dim, scene.n_free, dt, n_steps, threshold)
@@ -291,15 +302,22 @@ def _ticker(
     return tick
 
 
+def _budget_note(budget: float, steps: list[dict[str, Any]]) -> str:
+    return f"{BUDGET_NOTE} of {budget:g} s spent after step {len(steps)}"
+
+
 def _run_here(
-    args: RunArgs, on_step: Callable[[dict[str, Any]], None]
+    args: RunArgs, on_step: Callable[[dict[str, Any]], None], budget: float = math.inf
 ) -> tuple[list[dict[str, Any]], str]:
     """Run in this process; the steps taken and a note (empty when all went well)."""
     steps: list[dict[str, Any]] = []
+    start = time.perf_counter()
     for event in _trajectory(*args):
         if event["kind"] == "step":
             steps.append(event)
             on_step(event)
+            if time.perf_counter() - start > budget and len(steps) < args[4]:
+                return steps, _budget_note(budget, steps)
         elif event["kind"] == "error":
             return steps, str(event["note"])
     return steps, ""
@@ -316,8 +334,10 @@ def _run_isolated(
     time_limit: float | None,
     grace: float,
     on_step: Callable[[dict[str, Any]], None],
+    budget: float = math.inf,
 ) -> tuple[list[dict[str, Any]], str]:
-    """Run in a spawned child; a crash or a silence longer than the watchdog ends the run."""
+    """Run in a spawned child; a crash, a silence longer than the watchdog or a
+    spent ``budget`` (wall seconds for the whole run) ends the run."""
     ctx = mp.get_context("spawn")
     answers = ctx.Queue()
     proc = ctx.Process(target=_child, args=(args, answers), daemon=True)
@@ -327,8 +347,11 @@ def _run_isolated(
     finished = False
     proc.start()
     try:
-        last = time.perf_counter()
+        last = start = time.perf_counter()
         while True:
+            if time.perf_counter() - start > budget:
+                note = _budget_note(budget, steps)
+                break
             try:
                 event = answers.get(timeout=min(1.0, max(limit, 0.01)))
             except queue_mod.Empty:
@@ -509,6 +532,8 @@ def _verdicts(table: pd.DataFrame, threshold: float) -> str:
 
     def cell(row: pd.Series) -> str:
         if row["note"] and row["steps_done"] < row["steps_asked"]:
+            if str(row["note"]).startswith(BUDGET_NOTE):
+                return f"budget spent at step {int(row['steps_done'])}"
             return f"failed at step {int(row['steps_done']) + 1}"
         word = "yes" if row["at_rest"] else "no"
         return f"{word} ({row['max_energy_ratio']:.1e})"
