@@ -69,6 +69,46 @@ def test_table1_tiny_run(tmp_path, cache):
     assert list((cache / "bench").glob("table1-column-2d-20-*.pkl"))
 
 
+def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):
+    """Rows already in table1.csv are kept as they are; only missing ones are solved."""
+    out = tmp_path / "results"
+    first = table1.run(solvers="clarabel", time_limit=60.0, out=out, progress=print, **TINY)
+    lines: list[str] = []
+    again = table1.run(
+        solvers="clarabel,apgd",
+        time_limit=60.0,
+        out=out,
+        progress=lines.append,
+        resume=True,
+        **TINY,
+    )
+    ours = again[again.source == "this machine"]
+    assert len(ours) == 2 * 2
+    kept = ours[ours.solver == "clarabel"].reset_index(drop=True)
+    before = first[first.source == "this machine"].reset_index(drop=True)
+    # The very same measurements, not new solves.
+    assert list(kept.time_per_step_s) == list(before.time_per_step_s)
+    assert not any("clarabel eps" in line for line in lines)
+    assert any("apgd eps 1e-08 step 2/2" in line for line in lines)
+    assert (ours[ours.solver == "apgd"].steps_ok == "2/2").all()
+    csv = pd.read_csv(out / "table1.csv", keep_default_na=False)
+    assert len(csv[csv.source == "this machine"]) == 4
+    # Every row read back: nothing is solved or recorded the third time.
+    lines.clear()
+    table1.run(
+        solvers="clarabel,apgd",
+        time_limit=60.0,
+        out=out,
+        progress=lines.append,
+        resume=True,
+        **TINY,
+    )
+    assert sum("every row read from the previous table" in line for line in lines) == 2
+    (out / "table1.csv").write_text("not,a,table\n1,2,3\n")
+    with pytest.raises(CocdError, match="cannot resume"):
+        table1.run(solvers="clarabel", time_limit=60.0, out=out, resume=True, **TINY)
+
+
 def test_table1_timeout_is_a_row(tmp_path, cache):
     # pgs checks its deadline before its first sweep, and its set-up alone takes longer
     # than this limit: a cheap, deterministic time-out.
@@ -160,7 +200,7 @@ def test_table1_3d_time_limit_skips_tighter_eps(tmp_path, cache, monkeypatch):
     problem = runner.warmup_problem(3, 1e-2)
 
     def fake_record(label, make, *, dt, t_start, n_steps, solver, tol, progress):
-        assert (dt, t_start, solver, tol) == (1e-2, 1.0, "scs-dual", 1e-8)
+        assert (dt, t_start, solver, tol) == (1e-2, 1.0, "clarabel-dual", 1e-8)
         return StepSequence(
             label=label, dim=3, n_free=3, dt=dt, t_start=t_start,
             problems=[problem] * n_steps, impulses=[None] * n_steps,

@@ -65,10 +65,20 @@ def table1(
         float,
         typer.Option("--scale", help="Multiply the seed's grain counts by this (0 < S <= 1)."),
     ] = 0.1,
+    scale_3d: Annotated[
+        float | None,
+        typer.Option("--scale-3d", help="The 3D case's own scale (default: --scale)."),
+    ] = None,
     cases: Annotated[str, typer.Option("--cases", help="Which halves: 2d, 3d or 2d,3d.")] = "2d,3d",
     steps: Annotated[int, typer.Option("--steps", help="Steps averaged per row.")] = 10,
     time_limit: TimeLimit = 600.0,
     memory_gb: MemoryGb = None,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume", help="Keep the rows already in OUT/table1.csv; solve only the others."
+        ),
+    ] = False,
     out: Out = Path("results"),
 ) -> None:
     """The seed's Table 1: iterations and time per step against N, dt and eps."""
@@ -78,6 +88,8 @@ def table1(
         mod.run(
             solvers=solvers,
             scale=scale,
+            scale_3d=scale_3d,
+            resume=resume,
             cases=[c.strip() for c in cases.split(",") if c.strip()],
             steps=steps,
             time_limit=time_limit,

@@ -109,6 +109,8 @@ def run(
     t_start_3d: float = 1.0,
     trajectory_solver: str | None = None,
     progress: Callable[[str], None] = print,
+    scale_3d: float | None = None,
+    resume: bool = False,
 ) -> pd.DataFrame:
     """Run the Table 1 cases with every selected backend; write ``table1.csv/.md/.meta.json``.
 
@@ -121,6 +123,8 @@ def run(
     scale : float
         Grain counts are the seed's times ``scale``, in (0, 1]; at least
         20 discs in 2D.
+    scale_3d : float, optional
+        The 3D case's own scale, in (0, 1]; default ``scale``.
     cases : list of {"2d", "3d"}
         Which halves of the table.
     steps : int
@@ -136,12 +140,17 @@ def run(
         Time (s) of the first recorded step, 2D and 3D.
     trajectory_solver : str, optional
         Backend that advances the scenes and records the problems (at
-        ``tol = 1e-8``); default ``clarabel`` in 2D and ``scs-dual`` in 3D,
-        the faster accurate one for each (measured on this machine: clarabel
-        1.7 times faster for 831 discs, scs-dual 3.8 times faster for 1229
-        spheres).
+        ``tol = 1e-8``); default ``clarabel`` in 2D and ``clarabel-dual`` in
+        3D (measured on this machine: clarabel 1.7 times faster than
+        scs-dual for 831 discs; on a flowing 3D column of 6147 spheres
+        scs-dual needed about a minute per step at this tol).
     progress : callable
         Receives progress lines.
+    resume : bool
+        Keep the rows of this machine already in ``out/table1.csv`` (same
+        case, N, eps and backend) instead of solving them again. The table is
+        rewritten after every row, so an interrupted run resumes where it
+        stopped.
 
     Returns
     -------
@@ -156,7 +165,9 @@ def run(
         time limit or memory cap, or an unknown backend.
     """
     scale, steps, wanted = _check(scale, cases, steps, time_limit, memory_gb)
+    scale_3d, _, _ = _check(scale if scale_3d is None else scale_3d, cases, steps, time_limit, None)
     cap = default_memory_gb() if memory_gb is None else float(memory_gb)
+    done = _previous_rows(Path(out) / "table1.csv") if resume else {}
     trajectory = {dim: _trajectory_solver(trajectory_solver, dim) for dim in (2, 3)}
     # Both lists first, so that a bad name fails before any work.
     names = {dim: select_solvers(solvers, dim) for dim in (2, 3) if f"{dim}d" in wanted}
@@ -165,12 +176,32 @@ def run(
             progress(f"table1: no selected backend solves {dim}D problems; {dim}D skipped")
     rows: list[dict[str, Any]] = []
     start = time.perf_counter()
+
+    def write() -> pd.DataFrame:
+        table = pd.DataFrame(_ordered(rows) + _seed_rows(), columns=COLUMNS)
+        _write(
+            out,
+            table,
+            (scale, scale_3d),
+            steps,
+            wanted,
+            trajectory,
+            t_start_2d,
+            t_start_3d,
+            time_limit,
+        )
+        return table
+
+    def emit(row: dict[str, Any]) -> None:
+        rows.append(row)
+        write()
+
     if names.get(2):
         sizes = sorted({max(MIN_GRAINS, round(scale * n)) for n in SEED_N_2D})
         for n in sizes:
             make = partial(column_2d, n)
             label = f"table1-column-2d-{n}"
-            rows += _case(
+            _case(
                 CASE_2D,
                 label,
                 make,
@@ -184,12 +215,14 @@ def run(
                 memory_gb=cap,
                 scale=scale,
                 progress=progress,
+                done=done,
+                emit=emit,
             )
     if names.get(3):
-        n = max(1, round(scale * SEED_N_3D))
+        n = max(1, round(scale_3d * SEED_N_3D))
         make = partial(column_collapse, 3, n_grains=n, width=CHANNEL_WIDTH, bed="rough", mu=MU_3D)
         label = f"table1-column-3d-{n}"
-        rows += _case(
+        _case(
             CASE_3D,
             label,
             make,
@@ -201,12 +234,13 @@ def run(
             steps=steps,
             time_limit=time_limit,
             memory_gb=cap,
-            scale=scale,
+            scale=scale_3d,
             progress=progress,
+            done=done,
+            emit=emit,
         )
-    table = pd.DataFrame(rows + _seed_rows(), columns=COLUMNS)
+    table = write()
     progress(f"table1: done in {time.perf_counter() - start:.0f} s")
-    _write(out, table, scale, steps, wanted, trajectory, t_start_2d, t_start_3d, time_limit)
     return table
 
 
@@ -226,10 +260,26 @@ def _case(
     memory_gb: float,
     scale: float,
     progress: Callable[[str], None],
-) -> list[dict[str, Any]]:
-    """Record one case's step problems, then run every backend on them at every eps."""
+    done: dict[tuple[int, int, float, str], dict[str, Any]],
+    emit: Callable[[dict[str, Any]], None],
+) -> None:
+    """Record one case's step problems, then run every backend on them at every eps.
+
+    Each finished row goes to ``emit``; rows found in ``done`` are emitted as they are.
+    """
     scene = make()
     dim, n = scene.dim, scene.n_free
+    todo = []
+    for name in names:
+        for eps in sorted(eps_list, reverse=True):
+            key = (dim, n, float(eps), name)
+            if key in done:
+                emit(done[key])
+            else:
+                todo.append((name, eps))
+    if not todo:
+        progress(f"{label}: every row read from the previous table")
+        return
     base = dict(
         source=THIS_MACHINE, case=case, dim=dim, N=n, dt=dt, scale=scale, steps_ok=f"0/{steps}"
     )
@@ -252,45 +302,37 @@ def _case(
         # No problems to compare on: every backend gets a row saying why.
         note = f"no step problems: trajectory ({trajectory}) failed: {str(exc)[:200]}"
         progress(f"{label}: {note}")
-        return [
-            {**base, "Nc": np.nan, "eps": eps, "solver": name, "warm": "no", "note": note}
-            for eps in eps_list
-            for name in names
-        ]
+        for name, eps in todo:
+            emit({**base, "Nc": np.nan, "eps": eps, "solver": name, "warm": "no", "note": note})
+        return
     nc = float(np.mean([p.nc for p in seq.problems]))
     built = "read from the cache" if seq.build_time == 0.0 else f"{seq.build_time:.0f} s"
     progress(f"{label}: {len(seq.problems)} problems, mean Nc = {nc:.0f} ({built})")
     base["Nc"] = nc
-    rows: dict[tuple[float, str], dict[str, Any]] = {}
     # Kept alive while the worker uses it (the worker keys problems by identity).
     warmup = warmup_problem(dim, dt)
+    # Loosest eps first: a backend out of time there would be at a tighter eps too.
+    timed_out_at: dict[str, float] = {}
     with Worker(memory_gb=memory_gb) as worker:
-        for name in names:
-            # Loosest eps first: a backend out of time there would be at a tighter eps too.
-            timed_out_at: float | None = None
-            for eps in sorted(eps_list, reverse=True):
-                if timed_out_at is not None:
-                    rows[eps, name] = {
-                        **base,
-                        "eps": eps,
-                        "solver": name,
-                        "warm": "yes" if _takes_warm_start(name, seq) else "no",
-                        "note": f"not run: time limit on the first problem at eps {timed_out_at:g}",
-                    }
-                    continue
+        for name, eps in todo:
+            if name in timed_out_at:
+                row = {
+                    **base,
+                    "eps": eps,
+                    "solver": name,
+                    "warm": "yes" if _takes_warm_start(name, seq) else "no",
+                    "note": "not run: time limit on the first problem at eps "
+                    f"{timed_out_at[name]:g}",
+                }
+            else:
                 # Imports and JIT compilation in the worker would otherwise be timed
                 # as part of the first step.
                 worker.solve_row(warmup, name, eps, time_limit=time_limit)
-                row = _solver_rows(worker, seq, name, eps, time_limit, label, progress)
-                rows[eps, name] = {**base, "eps": eps, "solver": name, **row}
-                if row["first_status"] == "time_limit":
-                    timed_out_at = eps
-    # The seed lists the tighter eps first.
-    return [
-        {k: v for k, v in rows[eps, name].items() if k in COLUMNS}
-        for eps in sorted(eps_list)
-        for name in names
-    ]
+                stats = _solver_rows(worker, seq, name, eps, time_limit, label, progress)
+                row = {**base, "eps": eps, "solver": name, **stats}
+                if stats["first_status"] == "time_limit":
+                    timed_out_at[name] = eps
+            emit({k: v for k, v in row.items() if k in COLUMNS})
 
 
 def _solver_rows(
@@ -319,6 +361,38 @@ def _solver_rows(
             # The first problem is like the others: the rest would fail the same way.
             break
     return _summarise(answers, total, warm)
+
+
+def _ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """This machine's rows as the seed lists them: by dimension, N, tighter eps first;
+    backends in the order they were run."""
+    first: dict[str, int] = {}
+    for k, r in enumerate(rows):
+        first.setdefault(r["solver"], k)
+    return sorted(rows, key=lambda r: (r["dim"], r["N"], r["eps"], first[r["solver"]]))
+
+
+def _previous_rows(path: Path) -> dict[tuple[int, int, float, str], dict[str, Any]]:
+    """Rows of this machine in an earlier ``table1.csv``, keyed by (dim, N, eps, solver)."""
+    if not path.is_file():
+        return {}
+    try:
+        old = pd.read_csv(path)
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise CocdError(f"cannot resume from {path}: {exc}") from None
+    missing = set(COLUMNS) - set(old.columns)
+    if missing:
+        raise CocdError(f"cannot resume from {path}: columns {sorted(missing)} are missing")
+    old = old[old["source"] == THIS_MACHINE].astype(object)
+    old = old.where(pd.notna(old), None)
+    rows: dict[tuple[int, int, float, str], dict[str, Any]] = {}
+    for rec in old[COLUMNS].to_dict("records"):
+        rec["note"] = rec["note"] or ""
+        rec["steps_ok"] = rec["steps_ok"] or ""
+        for key in ("Nc", "iterations", "time_per_step_s", "ccp_residual", "coulomb_residual"):
+            rec[key] = np.nan if rec[key] is None else float(rec[key])
+        rows[int(rec["dim"]), int(rec["N"]), float(rec["eps"]), str(rec["solver"])] = rec
+    return rows
 
 
 def _takes_warm_start(name: str, seq: StepSequence) -> bool:
@@ -378,7 +452,7 @@ def _seed_rows() -> list[dict[str, Any]]:
 def _write(
     out: Path,
     table: pd.DataFrame,
-    scale: float,
+    scales: tuple[float, float],
     steps: int,
     wanted: list[str],
     trajectory: dict[int, str],
@@ -387,6 +461,7 @@ def _write(
     time_limit: float,
 ) -> None:
     title = "Table 1: iterations and time per step against N, dt and eps"
+    scale, scale_3d = scales
     halves = []
     if "2d" in wanted:
         halves.append(
@@ -396,14 +471,15 @@ def _write(
         )
     if "3d" in wanted:
         halves.append(
-            f"3D *{CASE_3D}*: a column of {SEED_N_3D} x {scale:g} spheres (20 x 14 cm, "
+            f"3D *{CASE_3D}*: a column of {SEED_N_3D} x {scale_3d:g} spheres (20 x 14 cm, "
             "20 cm wide channel, rough bed) collapsing, "
             f"mu = {MU_3D:g}, dt = {DT_3D:g} s, {steps} steps from t = {t_start_3d:g} s, "
             f"trajectory by {trajectory[3]}."
         )
     intro = "\n".join(
         [
-            f"N scaled by {scale:g} for this 2-core machine (the seed ran Mosek on 2 x 8 cores "
+            f"N scaled by {_scales_text(scales, wanted)} for this 2-core machine "
+            "(the seed ran Mosek on 2 x 8 cores "
             "at full size; its rows are at the bottom). Every backend solves the same "
             f"recorded step problems (trajectory backends at tol {TRAJECTORY_TOL:g}); "
             "eps is the tol handed to each backend, the residuals are the framework's "
@@ -429,8 +505,19 @@ def _write(
         "time_per_step_s",
         "ccp_residual",
     ]
-    summary = f"N scaled by {scale:g}.\n\n" + table[key].to_markdown(index=False, floatfmt=".3g")
+    summary = f"N scaled by {_scales_text(scales, wanted)}.\n\n" + table[key].to_markdown(
+        index=False, floatfmt=".3g"
+    )
     write_meta(out, "table1", title=title, files=files, summary=summary)
+
+
+def _scales_text(scales: tuple[float, float], wanted: list[str]) -> str:
+    scale, scale_3d = scales
+    if scale == scale_3d or "3d" not in wanted:
+        return f"{scale:g}"
+    if "2d" not in wanted:
+        return f"{scale_3d:g}"
+    return f"{scale:g} (2D) and {scale_3d:g} (3D)"
 
 
 # -- helpers ------------------------------------------------------------------
@@ -463,8 +550,8 @@ def _trajectory_solver(name: str | None, dim: int) -> str:
     if name is not None:
         solvers.get(name)  # an unknown name fails here, before any work
         return name
-    if dim == 3 and "scs-dual" in solvers.available():
-        return "scs-dual"
+    if dim == 3 and "clarabel-dual" in solvers.available():
+        return "clarabel-dual"
     return "clarabel"
 
 
