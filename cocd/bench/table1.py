@@ -140,11 +140,11 @@ def run(
         Time (s) of the first recorded step, 2D and 3D.
     trajectory_solver : str, optional
         Backend that advances the scenes and records the problems (at
-        ``tol = 1e-8``); default ``clarabel`` in 2D and ``scs-dual`` in 3D,
-        the faster accurate one for each (measured on this machine: clarabel
-        1.7 times faster for 831 discs, scs-dual 3.8 times faster for 1229
-        spheres; at 6147 spheres both scs-dual and clarabel-dual take about a
-        minute per step, which is why the 3D case runs at a smaller scale here).
+        ``tol = 1e-8``); default ``clarabel`` in 2D and ``clarabel-dual`` in
+        3D, the faster accurate one for each while the column flows (measured
+        on this machine: clarabel 1.7 times faster than scs-dual for 831
+        discs; for 1229 spheres clarabel-dual takes 3 s per step, scs-dual
+        about a minute once the column moves).
     progress : callable
         Receives progress lines.
     resume : bool
@@ -551,8 +551,8 @@ def _trajectory_solver(name: str | None, dim: int) -> str:
     if name is not None:
         solvers.get(name)  # an unknown name fails here, before any work
         return name
-    if dim == 3 and "scs-dual" in solvers.available():
-        return "scs-dual"
+    if dim == 3 and "clarabel-dual" in solvers.available():
+        return "clarabel-dual"
     return "clarabel"
 
 
