@@ -199,8 +199,8 @@ def test_table1_3d_time_limit_skips_tighter_eps(tmp_path, cache, monkeypatch):
     # A fake trajectory and worker: the 3D bookkeeping without a 3D simulation.
     problem = runner.warmup_problem(3, 1e-2)
 
-    def fake_record(label, make, *, dt, t_start, n_steps, solver, tol, progress):
-        assert (dt, t_start, solver, tol) == (1e-2, 1.0, "clarabel-dual", 1e-8)
+    def fake_record(label, make, *, dt, t_start, n_steps, solver, tol, progress, prep_tol):
+        assert (dt, t_start, solver, tol, prep_tol) == (1e-2, 1.0, "clarabel-dual", 1e-8, 1e-6)
         return StepSequence(
             label=label, dim=3, n_free=3, dt=dt, t_start=t_start,
             problems=[problem] * n_steps, impulses=[None] * n_steps,

@@ -86,6 +86,7 @@ def record_steps(
     tol: float = 1e-8,
     cache: bool = True,
     progress: Callable[[str], None] | None = None,
+    prep_tol: float | None = None,
 ) -> StepSequence:
     """Advance ``make_scene()`` with ``solver`` to ``t_start``, then record ``n_steps`` steps.
 
@@ -101,6 +102,10 @@ def record_steps(
         Number of recorded step problems.
     solver, tol : str, float
         Trajectory backend and its tolerance.
+    prep_tol : float, optional
+        Tolerance of the steps before ``t_start`` (default ``tol``): they only
+        need to bring the scene to a physical state, the recorded steps are
+        solved at ``tol``.
     cache : bool
         Read and write ``$COCD_CACHE/bench``.
     progress : callable, optional
@@ -108,18 +113,21 @@ def record_steps(
     """
     scene = make_scene()
     key = _key(label, scene, dt, t_start, n_steps, solver, tol)
+    if prep_tol is not None:
+        key = hashlib.sha256(f"{key}|prep_tol={float(prep_tol)!r}".encode()).hexdigest()
     path = cache_dir() / "bench" / f"{label}-{key[:16]}.pkl"
     if cache:
         seq = _read(path, key)
         if seq is not None:
             return seq
     start = time.perf_counter()
-    stepper = Stepper(scene, dt, solver=solver, tol=tol)
+    stepper = Stepper(scene, dt, solver=solver, tol=tol if prep_tol is None else prep_tol)
     n_before = max(0, round(t_start / dt) - round(scene.time / dt))
     say = progress or (lambda _line: None)
     for k in range(n_before):
         r = stepper.step()
         say(f"{label}: preparing, step {k + 1}/{n_before}, t = {r.t:.4f} s, Nc = {r.nc}")
+    stepper.tol = float(tol)
     problems: list[ConicProblem] = []
     impulses: list[FloatArray] = []
     warm: list[FloatArray | None] = []
