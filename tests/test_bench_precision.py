@@ -170,10 +170,14 @@ def test_run_writes_every_file_with_the_stated_columns(tiny_run):
     assert (csv["N"] > 0).all() and (csv["Nc"] > 0).all()
 
     sgm = pd.read_csv(out / "precision_sgm.csv")
-    assert list(sgm.columns) == ["target", "solver", "solved", "instances", "sgm_s", "sgm_rel"]
+    columns = ["problems", "target", "solver", "solved", "instances", "sgm_s", "sgm_rel"]
+    assert list(sgm.columns) == columns
     assert sorted(set(sgm["target"])) == [1e-8, 1e-6, 1e-4]
-    assert (sgm["instances"] == 4).all()
-    for _, group in sgm.groupby("target"):
+    # Over both problems x cold/warm, then over each dimension's two instances.
+    instances = sgm.groupby("problems")["instances"].unique().to_dict()
+    assert {k: list(v) for k, v in instances.items()} == {"all": [4], "2D": [2], "3D": [2]}
+    assert len(sgm) == 3 * 3 * 2
+    for _, group in sgm.groupby(["problems", "target"]):
         if (group["solved"] > 0).any():
             assert group["sgm_rel"].min() == pytest.approx(1.0)
     md = (out / "precision_sgm.md").read_text()
@@ -287,3 +291,28 @@ def test_a_time_out_skips_the_tighter_tolerances(cache, tmp_path):
     sgm = pd.read_csv(tmp_path / "precision_sgm.csv")
     assert (sgm["solved"] == 0).all() and np.allclose(sgm["sgm_s"], 1e-4)
     assert sgm["sgm_rel"].isna().all()
+
+
+def test_sgm_per_dimension_does_not_charge_a_2d_only_backend_for_3d():
+    from types import SimpleNamespace
+
+    insts = [SimpleNamespace(label="p2", dim=2), SimpleNamespace(label="p3", dim=3)]
+    chosen = {"p2": ["ipm", "qp"], "p3": ["ipm"]}
+    rows = pd.DataFrame(
+        [
+            (p, s, solver, t, 1e-9)
+            for p, solver, t in [("p2", "ipm", 2.0), ("p2", "qp", 0.5), ("p3", "ipm", 3.0)]
+            for s in ("cold", "warm")
+        ],
+        columns=["problem", "start", "solver", "wall_s", "ccp_residual"],
+    )
+    table = precision._sgm_by_problems(rows, insts, chosen, ["ipm", "qp"], time_limit=100.0)
+    two = table[(table.problems == "2D") & (table.target == 1e-8)].set_index("solver")
+    assert two.loc["qp", "sgm_rel"] == pytest.approx(1.0)
+    assert two.loc["ipm", "sgm_rel"] == pytest.approx(2.0 / 0.5)
+    three = table[(table.problems == "3D") & (table.target == 1e-8)]
+    assert list(three.solver) == ["ipm"] and three.sgm_rel.iloc[0] == pytest.approx(1.0)
+    # Over all instances, qp is charged the time limit where it cannot go.
+    every = table[(table.problems == "all") & (table.target == 1e-8)].set_index("solver")
+    assert every.loc["qp", "solved"] == 2 and every.loc["qp", "instances"] == 4
+    assert every.loc["qp", "sgm_rel"] > 1.0
