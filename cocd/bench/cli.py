@@ -7,6 +7,7 @@ then rebuilds ``<out>/README.md`` from every such record.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
@@ -42,6 +43,15 @@ def _floats(text: str, what: str) -> list[float]:
     if not values or any(not (v > 0) for v in values):
         raise CocdError(f"{what} must be positive numbers, got {text!r}")
     return values
+
+
+def _run(job: Callable[[], object], out: Path) -> None:
+    """Run one harness command; a CocdError is a one-line error and exit code 2."""
+    try:
+        job()
+    except CocdError as exc:
+        _fail(exc)
+    _finish(out)
 
 
 def _finish(out: Path) -> None:
@@ -84,8 +94,8 @@ def table1(
     """The seed's Table 1: iterations and time per step against N, dt and eps."""
     from cocd.bench import table1 as mod
 
-    try:
-        mod.run(
+    _run(
+        lambda: mod.run(
             solvers=solvers,
             scale=scale,
             scale_3d=scale_3d,
@@ -95,10 +105,9 @@ def table1(
             time_limit=time_limit,
             memory_gb=memory_gb,
             out=out,
-        )
-    except CocdError as exc:
-        _fail(exc)
-    _finish(out)
+        ),
+        out,
+    )
 
 
 @bench_app.command()
@@ -128,8 +137,8 @@ def stability(
     """The seed's Fig. 3: does a box at rest stay at rest, for each solver and eps?"""
     from cocd.bench import stability as mod
 
-    try:
-        mod.run(
+    _run(
+        lambda: mod.run(
             solvers=solvers,
             eps_list=_floats(eps_list, "--eps-list"),
             n=n,
@@ -140,10 +149,9 @@ def stability(
             time_limit=time_limit,
             out=out,
             run_budget=run_budget,
-        )
-    except CocdError as exc:
-        _fail(exc)
-    _finish(out)
+        ),
+        out,
+    )
 
 
 @bench_app.command()
@@ -161,8 +169,8 @@ def precision(
     """Speed against error: work-precision plots, performance profiles, geometric means."""
     from cocd.bench import precision as mod
 
-    try:
-        mod.run(
+    _run(
+        lambda: mod.run(
             solvers=solvers,
             tols=_floats(tols, "--tols"),
             n2d=n2d,
@@ -170,10 +178,9 @@ def precision(
             time_limit=time_limit,
             memory_gb=memory_gb,
             out=out,
-        )
-    except CocdError as exc:
-        _fail(exc)
-    _finish(out)
+        ),
+        out,
+    )
 
 
 @bench_app.command()
@@ -191,8 +198,8 @@ def hard(
     """Every solver on every hard case: status, iterations, time, residuals, energy drift."""
     from cocd.bench import hard as mod
 
-    try:
-        mod.run(
+    _run(
+        lambda: mod.run(
             solvers=solvers,
             cases=None if cases is None else [c.strip() for c in cases.split(",") if c.strip()],
             steps=steps,
@@ -200,10 +207,9 @@ def hard(
             time_limit=time_limit,
             memory_gb=memory_gb,
             out=out,
-        )
-    except CocdError as exc:
-        _fail(exc)
-    _finish(out)
+        ),
+        out,
+    )
 
 
 @bench_app.command()
