@@ -137,12 +137,12 @@ def _timed_solve(real: Callable[..., Any], clock: list[float]) -> Callable[..., 
 
 
 def _warm_up(solver: str, dim: int, tol: float) -> None:
-    """One step of a two-grain stack: imports the backend, loads compiled kernels."""
-    from cocd.builders import stack
-    from cocd.stepper import Stepper
+    """Solve the harness's warm-up problem once: imports the backend, loads compiled kernels."""
+    import solvers as backends
+    from cocd.bench.runner import warmup_problem
 
     try:
-        Stepper(stack(2, dim=dim), DEFAULT_DT, solver=solver, tol=tol, time_limit=10.0).step()
+        backends.solve(warmup_problem(dim, DEFAULT_DT), solver, tol, time_limit=10.0)
     except Exception:
         pass  # the timed run will report whatever is wrong
 
