@@ -201,49 +201,37 @@ def run(
         rows.append(row)
         write()
 
+    # (case, label, builder, dt, t_start, eps list, dim, scale, tolerance before t_start)
+    plan: list[tuple[str, str, Callable[[], Scene], float, float, list[float], int, float,
+                     float | None]] = []  # fmt: skip
     if names.get(2):
-        sizes = sorted({max(MIN_GRAINS, round(scale * n)) for n in SEED_N_2D})
-        for n in sizes:
-            make = partial(column_2d, n)
-            label = f"table1-column-2d-{n}"
-            _case(
-                CASE_2D,
-                label,
-                make,
-                DT_2D,
-                t_start_2d,
-                EPS_2D,
-                names=names[2],
-                trajectory=trajectory[2],
-                steps=steps,
-                time_limit=time_limit,
-                memory_gb=cap,
-                scale=scale,
-                progress=progress,
-                done=done,
-                emit=emit,
-            )
+        for n in sorted({max(MIN_GRAINS, round(scale * n)) for n in SEED_N_2D}):
+            make: Callable[[], Scene] = partial(column_2d, n)
+            plan.append((CASE_2D, f"table1-column-2d-{n}", make, DT_2D, t_start_2d, EPS_2D, 2,
+                         scale, None))  # fmt: skip
     if names.get(3):
         n = max(1, round(scale_3d * SEED_N_3D))
         make = partial(column_collapse, 3, n_grains=n, width=CHANNEL_WIDTH, bed="rough", mu=MU_3D)
-        label = f"table1-column-3d-{n}"
+        plan.append((CASE_3D, f"table1-column-3d-{n}", make, DT_3D, t_start_3d, EPS_3D, 3,
+                     scale_3d, PREP_TOL_3D))  # fmt: skip
+    for case, label, make, dt, t0, eps_list, dim, case_scale, prep_tol in plan:
         _case(
-            CASE_3D,
+            case,
             label,
             make,
-            DT_3D,
-            t_start_3d,
-            EPS_3D,
-            names=names[3],
-            trajectory=trajectory[3],
+            dt,
+            t0,
+            eps_list,
+            names=names[dim],
+            trajectory=trajectory[dim],
             steps=steps,
             time_limit=time_limit,
             memory_gb=cap,
-            scale=scale_3d,
+            scale=case_scale,
             progress=progress,
             done=done,
             emit=emit,
-            prep_tol=PREP_TOL_3D,
+            prep_tol=prep_tol,
         )
     table = write()
     progress(f"table1: done in {time.perf_counter() - start:.0f} s")
