@@ -152,6 +152,19 @@ class ConicProblem:
         Time step.
     U : (ndof,)
         Free velocity ``u^k + dt M^-1 f_ext``.
+    slip_offset : (nc, m - 1), optional
+        A constant tangential relative velocity added to ``H_T u`` (a moving
+        wall, or the tangential part of an external problem's ``w``): the
+        relative velocity is ``w = H u + (D/dt, slip_offset)``. ``None`` (the
+        default, every scene problem) means zero.
+    delassus_shift : float
+        The problem's Delassus operator is ``W = H M^-1 H' - delassus_shift I``
+        (0, the default, for every scene problem). An external local problem
+        whose ``W`` is positive semi-definite only to rounding is factored as
+        ``H H' = W + delta I`` (:mod:`cocd.io.problems`) and carries ``delta``
+        here: the dual data (:attr:`W`, :attr:`rho`), :meth:`contact_velocity`
+        and every residual are those of the true ``W``; the primal forms, which
+        are built on ``H`` and ``M``, are those of the shifted, convex problem.
     """
 
     dim: int
@@ -162,13 +175,28 @@ class ConicProblem:
     mu: FloatArray
     dt: float
     U: FloatArray
+    slip_offset: FloatArray | None = None
+    delassus_shift: float = 0.0
 
     def __post_init__(self) -> None:
+        self.delassus_shift = float(self.delassus_shift)
+        if not (np.isfinite(self.delassus_shift) and self.delassus_shift >= 0.0):
+            raise ProblemError(f"delassus_shift must be finite and >= 0, got {self.delassus_shift}")
         self.mass = np.asarray(self.mass, dtype=np.float64)
         self.D = np.asarray(self.D, dtype=np.float64).reshape(-1)
         self.mu = np.asarray(self.mu, dtype=np.float64).reshape(-1)
         self.U = np.asarray(self.U, dtype=np.float64).reshape(-1)
         self.H = sp.csr_matrix(self.H, dtype=np.float64)
+        if self.slip_offset is not None:
+            t = np.asarray(self.slip_offset, dtype=np.float64)
+            if t.size != self.D.size * (self.contact_dim - 1):
+                raise ProblemError(
+                    f"slip_offset has {t.size} entries, expected {self.D.size} contacts x "
+                    f"{self.contact_dim - 1} tangential components"
+                )
+            if not np.all(np.isfinite(t)):
+                raise ProblemError("slip_offset has non-finite entries")
+            self.slip_offset = t.reshape(self.D.size, self.contact_dim - 1)
         if self.dim not in (2, 3):
             raise ProblemError(f"dim must be 2 or 3, got {self.dim}")
         if self.contact_dim not in (1, self.dim):
@@ -215,9 +243,11 @@ class ConicProblem:
 
     @cached_property
     def offset(self) -> FloatArray:
-        """``(D/dt, 0)`` per contact, flattened, shape ``(m nc,)``."""
+        """``(D/dt, slip_offset)`` per contact, flattened, shape ``(m nc,)``."""
         e = np.zeros((self.nc, self.contact_dim))
         e[:, 0] = self.D / self.dt
+        if self.slip_offset is not None:
+            e[:, 1:] = self.slip_offset
         return e.reshape(-1)
 
     def velocity(self, p: FloatArray) -> FloatArray:
@@ -228,11 +258,26 @@ class ConicProblem:
         """``w = H u + (D/dt, 0)``, shape ``(nc, m)``: normal gap rate then slip."""
         return np.asarray(self.H @ u + self.offset).reshape(self.nc, self.contact_dim)
 
+    def contact_velocity(self, p: FloatArray) -> FloatArray:
+        """``w = W p + b`` for impulses ``p``, shape ``(nc, m)``, without forming ``W``.
+
+        The relative velocity the impulses imply: ``H (U + M^-1 H'p) + offset``,
+        minus ``delassus_shift p`` when the problem has one.
+        """
+        p = np.asarray(p, dtype=np.float64).reshape(self.nc, self.contact_dim)
+        w = self.relative_velocity(self.velocity(p))
+        if self.delassus_shift:
+            w = w - self.delassus_shift * p
+        return w
+
     # -- dual data -----------------------------------------------------------
     @cached_property
     def W(self) -> sp.csr_matrix:
-        """Delassus operator ``H M^-1 H'`` as a sparse matrix (never dense)."""
-        return sp.csr_matrix(self.H @ sp.diags(1.0 / self.mass) @ self.H.T)
+        """Delassus operator ``H M^-1 H' - delassus_shift I``, sparse (never dense)."""
+        W = sp.csr_matrix(self.H @ sp.diags(1.0 / self.mass) @ self.H.T)
+        if self.delassus_shift:
+            W = sp.csr_matrix(W - self.delassus_shift * sp.identity(W.shape[0]))
+        return W
 
     @cached_property
     def b(self) -> FloatArray:
@@ -246,7 +291,7 @@ class ConicProblem:
     @cached_property
     def rho(self) -> FloatArray:
         """Per-contact scaling ``m / trace(W_aa)``, shape ``(nc,)`` (a mass)."""
-        diag = np.asarray(self.H.multiply(self.H) @ (1.0 / self.mass))
+        diag = np.asarray(self.H.multiply(self.H) @ (1.0 / self.mass)) - self.delassus_shift
         return self.contact_dim / diag.reshape(self.nc, self.contact_dim).sum(axis=1)
 
     # -- primal forms --------------------------------------------------------
@@ -289,9 +334,8 @@ class ConicProblem:
             weights[:, :, 0] = 1.0
             weights[:, :, 1:] = self.mu[:, None, None] * e[None, :, :]
             S = sp.csr_matrix((weights.reshape(-1), (rows, cols)), shape=(k * nc, 3 * nc))
-            R = sp.csr_matrix(S @ self.H)
-            A = -R
-            b = (R @ self.U + np.repeat(self.D / self.dt, k)) / vs
+            A = -sp.csr_matrix(S @ self.H)
+            b = (S @ self.b) / vs
             return PrimalConicForm(
                 P=P,
                 q=q,
@@ -312,7 +356,9 @@ class ConicProblem:
             N, T = self.H[0::2], self.H[1::2]
             muT = sp.diags(self.mu) @ T
             A = -_interleave(N + muT, N - muT)
-            b = -(A @ self.U) / vs + np.repeat(self.D / (self.dt * vs), 2)
+            w0 = self.offset.reshape(nc, 2)
+            b0 = np.stack([w0[:, 0] + self.mu * w0[:, 1], w0[:, 0] - self.mu * w0[:, 1]], axis=1)
+            b = (b0.reshape(-1) - A @ self.U) / vs
             cones = [("nonneg", 2 * nc)] if nc else []
         else:
             scale = np.ones((nc, 3))

@@ -145,7 +145,7 @@ def _impulses(problem: ConicProblem, p: ArrayLike) -> FloatArray:
 
 def _w(problem: ConicProblem, p: FloatArray) -> FloatArray:
     """``W p + b`` without forming W: the relative velocity ``p`` implies."""
-    return problem.relative_velocity(problem.velocity(p))
+    return problem.contact_velocity(p)
 
 
 def _natural_map(problem: ConicProblem, p: FloatArray, w: FloatArray) -> float:

@@ -39,6 +39,11 @@ __all__ = [
 ]
 
 
+#: A ``delassus_shift`` below this fraction of the mean diagonal of ``W`` is
+#: rounding (a singular ``W`` made factorable), not an approximation.
+SHIFT_NEGLIGIBLE = 1e-11
+
+
 def solve(
     problem: ConicProblem,
     solver: str = "clarabel",
@@ -144,6 +149,13 @@ def solve(
             f"with {problem.nc} contacts: {type(exc).__name__}: {exc}"
         ) from exc
     solution.solver = solver
+    if problem.delassus_shift > SHIFT_NEGLIGIBLE / float(np.mean(problem.rho)) and (
+        info.formulation == "primal"
+    ):
+        # The primal is built on H and M: it answers W + delassus_shift I, not W.
+        shifted = f"W + {problem.delassus_shift:.3g} I (primal form of the shifted problem)"
+        previous = solution.extras.get("approximation")
+        solution.extras["approximation"] = f"{previous}; {shifted}" if previous else shifted
     solution.p = np.asarray(solution.p, dtype=np.float64).reshape(problem.nc, problem.contact_dim)
     solution.u = np.asarray(solution.u, dtype=np.float64).reshape(problem.ndof)
     return solution

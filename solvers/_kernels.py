@@ -108,8 +108,9 @@ def scaled_natural_map_sq(q, g, s, mu):
 
 
 @njit(cache=True)
-def natural_map_sq(indptr, indices, data, v, offset, rho, mu, p):
-    """``sum_a |p_a - P_K(p_a - rho_a w_a)|^2`` with ``w = H v + offset`` (``v = U + M^-1 H'p``).
+def natural_map_sq(indptr, indices, data, v, offset, rho, mu, p, shift):
+    """``sum_a |p_a - P_K(p_a - rho_a w_a)|^2`` with ``w = H v + offset - shift p``
+    (``v = U + M^-1 H'p``; ``shift`` is the problem's ``delassus_shift``).
 
     The numerator of :func:`cocd.residuals.ccp_residual`, squared, in one pass.
     """
@@ -122,7 +123,7 @@ def natural_map_sq(indptr, indices, data, v, offset, rho, mu, p):
             w = offset[row]
             for idx in range(indptr[row], indptr[row + 1]):
                 w += data[idx] * v[indices[idx]]
-            x[k] = p[a, k] - rho[a] * w
+            x[k] = p[a, k] - rho[a] * (w - shift * p[a, k])
         project_contact(x, mu[a])
         for k in range(m):
             d = p[a, k] - x[k]
@@ -131,10 +132,13 @@ def natural_map_sq(indptr, indices, data, v, offset, rho, mu, p):
 
 
 @njit(cache=True)
-def pgs_sweeps(indptr, indices, data, inv_mass, offset, rho, mu, omega, p, v, n_sweeps, dp_max):
+def pgs_sweeps(
+    indptr, indices, data, inv_mass, offset, rho, mu, omega, p, v, n_sweeps, dp_max, shift
+):
     """Run ``n_sweeps`` projected Gauss-Seidel sweeps over the contacts, in place.
 
-    Contact by contact, in order: ``w_a = H_a v + offset_a``,
+    Contact by contact, in order: ``w_a = H_a v + offset_a - shift p_a`` (``shift``
+    the problem's ``delassus_shift``),
     ``p_a <- P_K(p_a - omega rho_a w_a)``, then ``v += M^-1 H_a' (change of p_a)``
     so that ``v = U + M^-1 H'p`` holds after every contact (``H_a`` touches at
     most two grains: the update costs the nonzeros of its rows).
@@ -169,7 +173,7 @@ def pgs_sweeps(indptr, indices, data, inv_mass, offset, rho, mu, omega, p, v, n_
                 w = offset[row]
                 for idx in range(indptr[row], indptr[row + 1]):
                     w += data[idx] * v[indices[idx]]
-                x[k] = p[a, k] - step * w
+                x[k] = p[a, k] - step * (w - shift * p[a, k])
             project_contact(x, mu[a])
             for k in range(m):
                 d = x[k] - p[a, k]

@@ -91,7 +91,7 @@ def delassus_blocks(indptr, indices, data, inv_mass, nc, m):
 
 @njit(cache=True)
 def nscd_sweeps(
-    indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v, n_sweeps, symmetric, relax
+    indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v, n_sweeps, symmetric, relax, shift
 ):
     """Run ``n_sweeps`` non-linear Gauss-Seidel sweeps over the contacts, in place.
 
@@ -107,6 +107,9 @@ def nscd_sweeps(
         ``(D/dt, 0..)`` per contact.
     W, Winv : (nc, m, m)
         Diagonal blocks of the Delassus operator and their inverses.
+    shift : float
+        The problem's ``delassus_shift``: ``H_a M^-1 H_a' = W_aa + shift I``, so
+        the contact's own part of ``H_a v`` is ``(W_aa + shift I) p_a``.
     mu : (nc,)
     p : (nc, m)
         Impulses, updated.
@@ -139,7 +142,7 @@ def nscd_sweeps(
                     s += data[idx] * v[indices[idx]]
                 for ll in range(m):
                     s -= W[a, k, ll] * p[a, ll]
-                r[k] = s
+                r[k] = s - shift * p[a, k]
             local_solve(W[a], Winv[a], r, mu[a], out)
             for k in range(m):
                 new = relax * out[k] + (1.0 - relax) * p[a, k] if relax != 1.0 else out[k]

@@ -248,11 +248,14 @@ class _ScaledDual:
         self.HT = sp.csr_matrix(self.H.T)
         self.inv_mass = 1.0 / problem.mass
         self.b = (rows * problem.b).reshape(nc, m)
+        # W = H M^-1 H' - delassus_shift I: S (-shift I) S q = -shift s^2 q.
+        self.diagonal = (problem.delassus_shift * s**2)[:, None]
 
     def product(self, q: FloatArray) -> FloatArray:
         """``S W S q`` for ``q`` of shape ``(nc, m)``."""
         z = self.HT @ q.reshape(-1)
-        return np.asarray(self.H @ (self.inv_mass * z)).reshape(self.shape)
+        out = np.asarray(self.H @ (self.inv_mass * z)).reshape(self.shape)
+        return out - self.diagonal * q if self.diagonal.any() else out
 
     def gradient(self, q: FloatArray) -> FloatArray:
         """``S W S q + S b``."""

@@ -328,15 +328,16 @@ def build_model(problem: ConicProblem) -> CvxpyModel:
     objective = cp.Minimize(0.5 * cp.sum(cp.multiply(problem.mass / ms, cp.square(x))))
 
     N = H[0::m]  # normal rows
-    normal = (problem.D / problem.dt + N @ u) / vs  # gap rate at the end of the step
+    w0 = problem.offset.reshape(problem.nc, m)  # (D/dt, slip_offset)
+    normal = (w0[:, 0] + N @ u) / vs  # gap rate at the end of the step
     constraints: list[cp.Constraint]
     if m == 1:
         constraints = [normal >= 0]
     elif m == 2:
-        slip = cp.multiply(mu, H[1::2] @ u) / vs  # mu T u
+        slip = cp.multiply(mu, H[1::2] @ u + w0[:, 1]) / vs  # mu T u
         constraints = [normal >= slip, normal >= -slip]
     else:
-        tangential = cp.vstack([H[1::3] @ u, H[2::3] @ u]).T  # (nc, 2): T u per contact
+        tangential = cp.vstack([H[1::3] @ u + w0[:, 1], H[2::3] @ u + w0[:, 2]]).T
         slip = cp.multiply(np.repeat(mu[:, None], 2, axis=1), tangential) / vs
         constraints = [cp.SOC(normal, slip, axis=1)]
     return CvxpyModel(problem, cp.Problem(objective, constraints), x, constraints)

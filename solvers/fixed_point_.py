@@ -54,6 +54,7 @@ iterations, coulomb_residual)`` per outer iteration.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -109,6 +110,7 @@ def fp_solve_problem(
 
     best: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
     history: list[tuple[int, str, int, float]] = []
+    approximation: str | None = None
     iterations = 0
     setup_time = 0.0
     status = Status.MAX_ITER
@@ -122,16 +124,7 @@ def fp_solve_problem(
             status = Status.MAX_ITER
             break
         outer += 1
-        shifted = ConicProblem(
-            problem.dim,
-            m,
-            problem.mass,
-            problem.H,
-            problem.D + problem.dt * shift,
-            problem.mu,
-            problem.dt,
-            problem.U,
-        )
+        shifted = dataclasses.replace(problem, D=problem.D + problem.dt * shift)
         sol = solvers.solve(
             shifted,
             solver=inner,
@@ -149,6 +142,7 @@ def fp_solve_problem(
             history.append((outer, sol.status.value, sol.iterations, float("nan")))
             break
         p = sol.p
+        approximation = sol.extras.get("approximation", approximation)
         res = coulomb_residual(problem, p)
         history.append((outer, sol.status.value, sol.iterations, res))
         if verbose:
@@ -183,6 +177,7 @@ def fp_solve_problem(
             "outer": outer,
             "coulomb_residual": res_out,
             "history": history,
+            **({"approximation": approximation} if approximation else {}),
         },
     )
 
@@ -214,5 +209,5 @@ def _slip_shift(problem: ConicProblem, p: NDArray[np.float64]) -> NDArray[np.flo
     """``mu |w_T|`` per contact for the relative velocity ``w = W p + b``, shape ``(nc,)``."""
     if problem.contact_dim == 1:
         return np.zeros(problem.nc)
-    w = problem.relative_velocity(problem.velocity(p))
+    w = problem.contact_velocity(p)
     return np.asarray(problem.mu * np.linalg.norm(w[:, 1:], axis=1))

@@ -111,7 +111,10 @@ def nscd_solve_problem(
     inv_mass = 1.0 / problem.mass
     offset = np.ascontiguousarray(problem.offset)
     mu = np.ascontiguousarray(problem.mu)
-    W = delassus_blocks(indptr, indices, data, inv_mass, nc, m)
+    shift = problem.delassus_shift
+    W = delassus_blocks(indptr, indices, data, inv_mass, nc, m)  # of H M^-1 H'
+    if shift:  # the problem's own blocks: W = H M^-1 H' - shift I
+        W = W - shift * np.eye(m)[None, :, :]
     Winv = _inverses(W)
     if warm_start is None:
         p = np.zeros((nc, m))
@@ -135,7 +138,7 @@ def nscd_solve_problem(
         chunk = 1 if sweeps == 0 else min(check_every, max_sweeps - sweeps)
         dp_max = nscd_sweeps(
             indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v,
-            chunk, symmetric, relax,
+            chunk, symmetric, relax, shift,
         )  # fmt: skip
         sweeps += chunk
         # Rounding accumulates in v over many updates: restart it from p.

@@ -124,6 +124,7 @@ def pgs_solve_problem(
     data = np.ascontiguousarray(H.data, dtype=np.float64)
     inv_mass = 1.0 / problem.mass
     offset = np.ascontiguousarray(problem.offset, dtype=np.float64)
+    shift = problem.delassus_shift
     rho = np.ascontiguousarray(problem.rho, dtype=np.float64)
     mu = np.ascontiguousarray(problem.mu, dtype=np.float64)
     rb = rho[:, None] * problem.b.reshape(nc, m)
@@ -144,7 +145,9 @@ def pgs_solve_problem(
     native = "max_iter"
     while True:
         v = problem.velocity(p)  # resynchronise: the sweeps update v incrementally
-        r = ratio(math.sqrt(natural_map_sq(indptr, indices, data, v, offset, rho, mu, p)), rb_norm)
+        r = ratio(
+            math.sqrt(natural_map_sq(indptr, indices, data, v, offset, rho, mu, p, shift)), rb_norm
+        )
         check_sweeps.append(sweeps)
         check_ccp.append(r)
         if not np.all(np.isfinite(v)):
@@ -167,7 +170,9 @@ def pgs_solve_problem(
             status, native = Status.TIME_LIMIT, "time_limit"
             break
         n = min(check_every, sweeps_cap - sweeps)
-        pgs_sweeps(indptr, indices, data, inv_mass, offset, rho, mu, omega, p, v, n, dp_buffer)
+        pgs_sweeps(
+            indptr, indices, data, inv_mass, offset, rho, mu, omega, p, v, n, dp_buffer, shift
+        )
         dp_history.append(dp_buffer[:n] / impulse_scale)
         sweeps += n
     solve_time = time.perf_counter() - solve_start

@@ -89,7 +89,7 @@ def _newton_step(
 ) -> NDArray[np.float64] | None:
     nc, m = problem.nc, problem.contact_dim
     mu = problem.mu
-    w = problem.relative_velocity(problem.velocity(p))
+    w = problem.contact_velocity(p)
     y = p - weight * problem.rho[:, None] * w
     proj = project_coulomb(y, mu)
     state = np.full(nc, SLIDING)

@@ -819,7 +819,7 @@ def facet_error_bound(problem: ConicProblem, p_exact: NDArray[np.float64], facet
         return 0.0
     p = np.asarray(p_exact, dtype=np.float64).reshape(problem.nc, 3)
     c = math.cos(math.pi / k)
-    w = problem.relative_velocity(problem.velocity(p))
+    w = problem.contact_velocity(p)
     slide = max(0.0, -float(np.sum(w[:, 1:] * p[:, 1:])))
     pt = p.copy()
     pt[:, 0] = 0.0

@@ -2,7 +2,8 @@
 
 Each backend solves the same step problems: a 2D packing of about 200 discs
 (a collapsing column), a 3D heap of about 100 spheres in a box, resting stacks,
-and grains rolling on slopes. Exact convex backends at tol 1e-8 must give
+grains rolling on slopes, and the two packings with a constant tangential
+relative velocity at every contact (``slip_offset``). Exact convex backends at tol 1e-8 must give
 velocities within 1e-5 of ``clarabel``'s at tol 1e-10, relative to the step's
 velocity scale ``max(||u_ref||, ||U||)``, and report ``optimal``
 (which the suite-wide check in conftest.py turns into ``ccp_residual <= 10 tol``).
@@ -13,6 +14,8 @@ problems (its faceted approximation is tested in test_qp.py).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -39,6 +42,13 @@ def _slope(dim: int, degrees: float) -> Scene:
 
 def _build(name: str):
     """A step problem mid-run: (scene factory, steps taken before it)."""
+    if name.startswith("slip-offset"):
+        # A constant tangential relative velocity at every contact (a conveyor belt,
+        # an external problem's w_T): the same packing, dragged sideways.
+        base = _build("packing-2d" if name.endswith("2d") else "heap-3d")
+        rng = np.random.default_rng(5)
+        m = base.contact_dim
+        return dataclasses.replace(base, slip_offset=rng.uniform(-0.05, 0.05, (base.nc, m - 1)))
     scenes = {
         "packing-2d": (lambda: column_2d(200, seed=1), 30),
         "heap-3d": (lambda: box_3d(100, seed=2, mu=0.4), 20),
@@ -66,6 +76,8 @@ PROBLEM_NAMES = [
     "slope-2d-roll",
     "slope-3d-slide",
     "frictionless-3d",
+    "slip-offset-2d",
+    "slip-offset-3d",
 ]
 
 
@@ -95,7 +107,7 @@ def references(problems):
 
 ALL_BACKENDS = sorted(solvers.registered())
 #: Problems with second-order cones (3D friction): not for linear-cone backends.
-SOC_PROBLEMS = {"heap-3d", "stack-3d", "slope-3d-slide"}
+SOC_PROBLEMS = {"heap-3d", "stack-3d", "slope-3d-slide", "slip-offset-3d"}
 
 
 def _cases(problem_names):
@@ -112,11 +124,9 @@ def _cases(problem_names):
 
 #: Failures of a native solver, stated rather than hidden.
 KNOWN_FAILURES = {
-    ("qp:highs", "packing-2d"): "HiGHS's QP solver reports 'Non-convex' on this diagonal Hessian",
-    (
-        "cvxpy:HIGHS",
-        "packing-2d",
-    ): "HiGHS's QP solver reports 'Non-convex' on this diagonal Hessian",
+    (backend, case): "HiGHS's QP solver reports 'Non-convex' on this diagonal Hessian"
+    for backend in ("qp:highs", "cvxpy:HIGHS")
+    for case in ("packing-2d", "slip-offset-2d")
 }
 
 

@@ -608,6 +608,8 @@ def _pristine(problem: ConicProblem) -> ConicProblem:
         mu=problem.mu.copy(),
         dt=problem.dt,
         U=problem.U.copy(),
+        slip_offset=None if problem.slip_offset is None else problem.slip_offset.copy(),
+        delassus_shift=problem.delassus_shift,
     )
 
 
