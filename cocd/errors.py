@@ -11,6 +11,7 @@ __all__ = [
     "CocdError",
     "OverlapError",
     "ProblemError",
+    "ProblemFileError",
     "SceneError",
     "SolverError",
     "SolverNotFound",
@@ -31,6 +32,11 @@ class OverlapError(SceneError):
 
 class ProblemError(CocdError, ValueError):
     """A conic problem or a step parameter (time step, tolerance) is invalid."""
+
+
+class ProblemFileError(ProblemError):
+    """A problem file (FCLib HDF5, Siconos text) cannot be read: the message names
+    the file and what in it is wrong."""
 
 
 class SolverNotFound(CocdError, LookupError):
