@@ -1,14 +1,17 @@
 """The ``cocd`` command.
 
 ``cocd run`` (also ``python -m cocd``) runs a small 2D column collapse and
-prints per-step statistics; ``cocd solvers`` lists the backends; ``cocd bench``
-runs the benchmark harness (:mod:`cocd.bench`).
+prints per-step statistics; ``cocd solvers`` lists the backends; ``cocd problem``
+reads and solves external problem files (FCLib HDF5, Siconos text);
+``cocd bench`` runs the benchmark harness (:mod:`cocd.bench`).
 """
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -26,6 +29,12 @@ app = typer.Typer(
     help="Granular media with hard Coulomb contact, one convex conic problem per step.",
 )
 app.add_typer(bench_app, name="bench")
+problem_app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Single-step problems from other tools: FCLib HDF5 and Siconos text files.",
+)
+app.add_typer(problem_app, name="problem")
 console = Console(soft_wrap=True)
 
 
@@ -117,3 +126,78 @@ def list_solvers() -> None:
             "yes" if name not in missing else f"no: {missing[name]}",
         )
     console.print(table)
+
+
+def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
+    """NaN and infinity as ``null`` (JSON has neither)."""
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+
+@problem_app.command("info")
+def problem_info(
+    file: Annotated[Path, typer.Argument(help="FCLib .hdf5 or Siconos .dat file.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Kind (local or global), sizes, friction and the Delassus operator's symmetry."""
+    from cocd.external import describe
+    from cocd.io import read_problem
+
+    try:
+        info = describe(read_problem(file))
+    except CocdError as exc:
+        _fail(exc)
+        return
+    if as_json:
+        typer.echo(json.dumps(_jsonable(info)))
+        return
+    for key, value in info.items():
+        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
+        console.print(f"{key:>18}: {shown}", highlight=False)
+
+
+@problem_app.command("solve")
+def problem_solve(
+    file: Annotated[Path, typer.Argument(help="FCLib .hdf5 or Siconos .dat file.")],
+    solver: Annotated[str, typer.Option("--solver", help="Backend (see `cocd solvers`).")] = (
+        "clarabel"
+    ),
+    tol: Annotated[float, typer.Option("--tol", help="Backend tolerance.")] = 1e-8,
+    time_limit: Annotated[
+        float | None, typer.Option("--time-limit", help="Seconds for the backend.")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    save_solution: Annotated[
+        Path | None,
+        typer.Option(
+            "--save-solution",
+            help="Write the answer as .npz: r (impulses, normal first), u (local "
+            "velocities), v (generalized velocities, global problems).",
+        ),
+    ] = None,
+) -> None:
+    """Solve one problem with one backend; report cocd's residuals and the natural map error."""
+    from cocd.external import solve_external
+    from cocd.io import read_problem
+
+    try:
+        problem = read_problem(file)
+        record, answer = solve_external(problem, solver, tol, time_limit=time_limit)
+    except CocdError as exc:
+        _fail(exc)
+        return
+    if save_solution is not None:
+        if answer is None:
+            _fail(CocdError(f"solver {solver!r} returned no usable impulses: nothing to save"))
+        else:
+            import numpy as np
+
+            arrays: dict[str, Any] = answer.arrays()
+            np.savez(save_solution, **arrays)
+    if as_json:
+        typer.echo(json.dumps(_jsonable(record)))
+        return
+    for key, value in record.items():
+        shown = f"{value:.3e}" if isinstance(value, float) else str(value)
+        console.print(f"{key:>18}: {shown}", highlight=False)
+    if save_solution is not None:
+        console.print(f"wrote {save_solution}")

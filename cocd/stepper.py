@@ -7,9 +7,11 @@ to the backends through :class:`~cocd.problem.ConicProblem` and
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -87,6 +89,12 @@ class Stepper:
         Backend-specific options.
     overlap_tol : float
         Largest initial overlap allowed, relative to the smaller radius.
+    fclib_dir : path, optional
+        Write step problems to this folder as FCLib global problems
+        (``step_000001.hdf5``, ...) with the step's answer in ``/solution``,
+        so that other tools can solve cocd's steps (:mod:`cocd.io.fclib`).
+    fclib_steps : collection of int, optional
+        Which step numbers (1-based) to write; every step when ``None``.
     """
 
     def __init__(
@@ -102,6 +110,8 @@ class Stepper:
         time_limit: float | None = None,
         solver_options: dict[str, Any] | None = None,
         overlap_tol: float = DEFAULT_OVERLAP_TOL,
+        fclib_dir: str | os.PathLike[str] | None = None,
+        fclib_steps: Collection[int] | None = None,
     ) -> None:
         if not isinstance(scene, Scene):
             raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
@@ -129,6 +139,10 @@ class Stepper:
         self.max_iter = max_iter
         self.time_limit = time_limit
         self.solver_options = dict(solver_options or {})
+        self.fclib_dir = None if fclib_dir is None else Path(fclib_dir)
+        self.fclib_steps = None if fclib_steps is None else frozenset(int(k) for k in fclib_steps)
+        if self.fclib_dir is not None:
+            self.fclib_dir.mkdir(parents=True, exist_ok=True)
         self.records: list[StepRecord] = []
         self.contacts: ContactSet | None = None
         self.problem: ConicProblem | None = None
@@ -196,7 +210,38 @@ class Stepper:
         )
         self.contacts, self.problem, self.solution = contacts, problem, solution
         self.records.append(record)
+        if self.fclib_dir is not None and (self.fclib_steps is None or k in self.fclib_steps):
+            self.export_step(self.fclib_dir / f"step_{k:06d}.hdf5")
         return record
+
+    def export_step(self, path: str | os.PathLike[str]) -> Path:
+        """Write the last step's problem, with its answer, as an FCLib global problem.
+
+        ``M = diag(mass)``, ``H = H_cocd'``, ``f = M U``, ``w = (D/dt, 0)`` (see
+        :meth:`cocd.io.problems.GlobalProblem.from_conic`); ``/solution`` holds
+        ``r`` (impulses), ``u`` (relative velocities) and ``v`` (velocities).
+        """
+        from cocd.io.fclib import write_fclib
+        from cocd.io.problems import GlobalProblem
+
+        if self.problem is None or self.solution is None:
+            raise ProblemError("no step has been taken yet: nothing to export")
+        problem, k = self.problem, self.step_count
+        scene = self.scene
+        glob = GlobalProblem.from_conic(
+            problem,
+            title=f"cocd {scene.dim}D step {k}",
+            description=(
+                f"cocd step {k} (t = {scene.time:.9g} s, dt = {self.dt:g} s): "
+                f"{scene.n_free} free grains, {problem.nc} contacts; solved by "
+                f"{self.solver} at tol {self.tol:g}. Velocities in the problem's "
+                "unknowns (translations, then rotations times radius)."
+            ),
+        )
+        p = self.solution.p
+        if problem.contact_dim == 1:  # written with zero tangential components
+            p = np.concatenate([p, np.zeros((problem.nc, scene.dim - 1))], axis=1)
+        return write_fclib(path, glob, solution=glob.solution(p))
 
     def run(
         self,

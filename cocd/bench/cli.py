@@ -18,7 +18,7 @@ from cocd.errors import CocdError
 bench_app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
-    help="Compare backends: Table 1, stability, speed against error, hard cases.",
+    help="Compare backends: Table 1, stability, precision, hard cases, external problems.",
 )
 
 Solvers = Annotated[
@@ -207,6 +207,38 @@ def hard(
             time_limit=time_limit,
             memory_gb=memory_gb,
             out=out,
+        ),
+        out,
+    )
+
+
+@bench_app.command()
+def external(
+    folder: Annotated[
+        Path, typer.Argument(help="Folder of FCLib .hdf5 / Siconos .dat problem files.")
+    ],
+    solvers: Solvers = None,
+    tol: Annotated[float, typer.Option("--tol", help="Tolerance asked of every solver.")] = 1e-8,
+    coulomb_target: Annotated[
+        float,
+        typer.Option("--coulomb-target", help="natural_map_error counted as solving Coulomb."),
+    ] = 1e-6,
+    time_limit: TimeLimit = 60.0,
+    memory_gb: MemoryGb = None,
+    out: Out = Path("results"),
+) -> None:
+    """Every backend on every problem file of FOLDER: table and performance profiles."""
+    from cocd.bench import external as mod
+
+    _run(
+        lambda: mod.run(
+            folder=folder,
+            solvers=solvers,
+            tol=tol,
+            time_limit=time_limit,
+            memory_gb=memory_gb,
+            out=out,
+            coulomb_target=coulomb_target,
         ),
         out,
     )

@@ -41,6 +41,7 @@ ORDER = [
     "stability",
     "precision",
     "hard",
+    "external",
     "backends",
     "iterative",
     "collapse_2d_slope",

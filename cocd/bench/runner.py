@@ -248,6 +248,7 @@ class Worker:
         time_limit: float | None = None,
         max_iter: int | None = None,
         ref_u: FloatArray | None = None,
+        keep_solution: bool = False,
     ) -> dict[str, Any]:
         """As :func:`solve_row`, in the child process; never raises for a backend failure.
 
@@ -263,6 +264,7 @@ class Worker:
             time_limit=time_limit,
             max_iter=max_iter,
             ref_u=ref_u,
+            keep_solution=keep_solution,
         )
         self._jobs.put((self._path(problem), kwargs))
         limit = None if time_limit is None else 1.5 * time_limit + self.grace

@@ -1,0 +1,248 @@
+"""``cocd bench external``: every backend on every problem file of a folder.
+
+Problems written by other tools (FCLib HDF5, Siconos text) are read
+(:func:`cocd.io.read_problem`), turned into cocd's
+:class:`~cocd.problem.ConicProblem` once (the conversion time is charged to
+every backend alike) and solved by each backend that takes them, in a
+:class:`~cocd.bench.runner.Worker` child (same clock, time limit, memory cap),
+after one warm-up solve per backend and dimension.
+
+Each answer is judged by the framework: ``ccp_residual`` (the convex problem
+every convex backend solves) and ``natural_map_error`` (Coulomb's law in the
+file's own terms, :func:`cocd.io.problems.natural_map_error`). Two
+Dolan-Moré performance profiles follow, one per criterion: for each backend,
+the fraction of problems it solved within a factor ``tau`` of the fastest
+backend that solved them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cocd.bench import DEFAULT_SOLVERS, select_solvers
+from cocd.bench.report import write_meta, write_table
+from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
+from cocd.errors import CocdError, ProblemError
+from cocd.external import RECORD_KEYS
+
+__all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "performance_profile", "run"]
+
+#: Suffixes of the files taken from the folder.
+SUFFIXES = (".hdf5", ".h5", ".dat")
+#: The harness's set plus the non-convex fixed point and ECOS.
+EXTERNAL_SOLVERS = [*DEFAULT_SOLVERS, "ecos", "fp:clarabel"]
+COLUMNS = [*RECORD_KEYS[:-1], "wall_s", "note"]
+
+
+def _files(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise CocdError(f"{folder} is not a folder of problem files")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in SUFFIXES)
+    if not files:
+        raise CocdError(f"{folder} holds no problem file ({', '.join(SUFFIXES)})")
+    return files
+
+
+def _usable(name: str) -> bool:
+    import solvers as registry
+
+    try:
+        return registry.resolve(name)[0].unavailable_reason() is None
+    except CocdError:
+        return False
+
+
+def run(
+    *,
+    folder: Path,
+    solvers: str | list[str] | None,
+    tol: float,
+    time_limit: float,
+    memory_gb: float | None,
+    out: Path,
+    coulomb_target: float = 1e-6,
+    progress: Callable[[str], None] = print,
+) -> pd.DataFrame:
+    """Solve every problem of ``folder`` with every backend; write the table and profiles.
+
+    Parameters
+    ----------
+    folder : Path
+        Problem files (``*.hdf5``, ``*.h5``, ``*.dat``).
+    solvers : str or list of str, optional
+        Backends; default :data:`EXTERNAL_SOLVERS` (those available here).
+    tol : float
+        Tolerance asked of every backend, and the ``ccp_residual`` a backend
+        must reach for its answer to count as solving the convex problem.
+    time_limit : float
+        Seconds per solve.
+    memory_gb : float, optional
+        Memory cap of the child process (GiB).
+    out : Path
+        Output folder for ``external.{csv,md}``, ``external_profiles.png``.
+    coulomb_target : float
+        ``natural_map_error`` an answer must reach to count as solving Coulomb's law.
+    """
+    if not (math.isfinite(tol) and tol > 0):
+        raise CocdError(f"tol must be a finite number > 0, got {tol!r}")
+    if not (math.isfinite(time_limit) and time_limit > 0):
+        raise CocdError(f"time limit must be > 0 seconds, got {time_limit!r}")
+    if not (math.isfinite(coulomb_target) and coulomb_target > 0):
+        raise CocdError(f"the Coulomb target must be > 0, got {coulomb_target!r}")
+    from cocd.io import read_problem
+
+    files = _files(Path(folder))
+    names = solvers if solvers is not None else [n for n in EXTERNAL_SOLVERS if _usable(n)]
+    memory = default_memory_gb() if memory_gb is None else float(memory_gb)
+    rows: list[dict[str, Any]] = []
+    warmed: set[tuple[str, int]] = set()
+    with Worker(memory_gb=memory) as worker:
+        for path in files:
+            base: dict[str, Any] = {c: np.nan for c in COLUMNS}
+            base.update(problem=path.name, note="")
+            try:
+                problem = read_problem(path)
+            except CocdError as exc:
+                rows.append({**base, "status": "unreadable", "note": str(exc)})
+                progress(f"{path.name}: unreadable: {exc}")
+                continue
+            base.update(kind=problem.kind, dim=problem.dim, nc=problem.nc, ndof=problem.ndof)
+            chosen = select_solvers(names, problem.dim)
+            start = time.perf_counter()
+            try:
+                conic = problem.conic
+            except ProblemError as exc:
+                reason = str(exc).split(": ", 1)[-1]
+                for solver in chosen:
+                    rows.append({**base, "solver": solver, "status": "n/a", "note": reason})
+                progress(f"{path.name}: no backend applies: {reason}")
+                continue
+            convert = time.perf_counter() - start
+            for solver in chosen:
+                if (solver, problem.dim) not in warmed:
+                    worker.solve_row(warmup_problem(problem.dim), solver, tol, time_limit=60.0)
+                    warmed.add((solver, problem.dim))
+                got = worker.solve_row(
+                    conic, solver, tol, time_limit=time_limit, keep_solution=True
+                )
+                row = {
+                    **base,
+                    "solver": solver,
+                    "status": got.get("status", "error"),
+                    "iterations": got.get("iterations", np.nan),
+                    "time_s": got.get("solve_s", np.nan),
+                    "setup_s": convert + float(got.get("setup_s", np.nan)),
+                    "wall_s": convert + float(got.get("wall_s", np.nan)),
+                    "ccp_residual": got.get("ccp_residual", np.nan),
+                    "coulomb_residual": got.get("coulomb_residual", np.nan),
+                    "note": got.get("note", "") or "",
+                }
+                p = got.get("p")
+                if p is not None and np.all(np.isfinite(p)):
+                    row["natural_map_error"] = problem.natural_map_error(p)
+                rows.append(row)
+                progress(
+                    f"{path.name:44s} {solver:14s} {row['status']:10s} "
+                    f"ccp {row['ccp_residual']:.1e}  natural map "
+                    f"{row['natural_map_error']:.1e}  {row['wall_s']:.3f} s"
+                )
+    table = pd.DataFrame(rows, columns=COLUMNS)
+    _write(table, out, tol=tol, time_limit=time_limit, coulomb_target=coulomb_target)
+    return table
+
+
+def performance_profile(
+    table: pd.DataFrame, solved: pd.Series, taus: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Dolan-Moré profile: for each solver, the fraction of problems solved within
+    ``tau`` times the fastest time on that problem.
+
+    ``solved`` marks the rows that count; the problems are those any solver solved
+    (a problem nobody solves says nothing about relative speed).
+    """
+    t = table.assign(t=np.where(solved, table["wall_s"], np.inf))
+    times = t.pivot_table(index="problem", columns="solver", values="t", aggfunc="min")
+    times = times.replace(np.nan, np.inf)
+    best = times.min(axis=1)
+    times = times[np.isfinite(best)]
+    best = best[np.isfinite(best)]
+    out = {}
+    for solver in times.columns:
+        ratio = (times[solver] / best).to_numpy()
+        out[str(solver)] = np.array([np.mean(ratio <= tau) if ratio.size else 0.0 for tau in taus])
+    return out
+
+
+def _write(
+    table: pd.DataFrame, out: Path, *, tol: float, time_limit: float, coulomb_target: float
+) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    title = "External problems (FCLib, Siconos): every backend on every file"
+    intro = (
+        f"tol {tol:g} asked of every backend, time limit {time_limit:g} s per solve. "
+        "`setup_s` and `wall_s` include cocd's conversion of the file's problem "
+        "(factorisation of M or W), the same for every backend on a problem. "
+        "`ccp_residual`: the convex problem (DESIGN.md section 2); `natural_map_error`: "
+        "Coulomb's law, unscaled natural map / max(1, ||q||). `n/a`: no backend takes the "
+        "problem (the note says why)."
+    )
+    files = write_table(out, "external", table, title=title, intro=intro)
+
+    answered = table["solver"].notna() & ~table["status"].isin(["n/a", "unreadable"])
+    tab = table[answered]
+    criteria = {
+        f"convex problem: ccp_residual <= {tol:g}": tab["ccp_residual"] <= tol,
+        f"Coulomb's law: natural_map_error <= {coulomb_target:g}": (
+            tab["natural_map_error"] <= coulomb_target
+        ),
+    }
+    taus = np.logspace(0, 4, 200)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), sharey=True)
+    summary_rows = []
+    for ax, (label, solved) in zip(axes, criteria.items(), strict=True):
+        prof = performance_profile(tab, solved, taus) if len(tab) else {}
+        for solver, frac in sorted(prof.items()):
+            ax.step(taus, frac, where="post", label=solver)
+        ax.set_xscale("log")
+        ax.set_xlabel("tau (time / fastest time on the problem)")
+        ax.set_title(label, fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.set_ylim(-0.02, 1.02)
+        for solver in sorted(prof):
+            summary_rows.append(
+                {
+                    "criterion": label.split(":")[0],
+                    "solver": solver,
+                    "solved": int(solved[tab["solver"] == solver].sum()),
+                    "fastest": float(prof[solver][0]),
+                }
+            )
+    axes[0].set_ylabel("fraction of problems")
+    axes[1].legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    png = out / "external_profiles.png"
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    files.append(png)
+    n_problems = table["problem"].nunique()
+    summary = pd.DataFrame(summary_rows)
+    text = f"{n_problems} problem files. Problems solved and fraction fastest, per criterion:\n\n"
+    if len(summary):
+        text += summary.to_markdown(index=False, floatfmt=".2f")
+    skipped = table[table["status"].isin(["n/a", "unreadable"])].drop_duplicates("problem")
+    if len(skipped):
+        text += "\n\nNot solved by any backend: " + "; ".join(
+            f"`{r.problem}` ({r.status}: {r.note})" for r in skipped.itertuples()
+        )
+    write_meta(out, "external", title=title, files=files, summary=text)
