@@ -67,6 +67,11 @@ def describe(problem: ExternalProblem) -> dict[str, Any]:
     local = problem.local()
     out["W_nnz"] = int(local.W.nnz)
     out["W_symmetry_error"] = local.symmetry_error()
+    if isinstance(problem, LocalProblem):
+        try:
+            out["delassus_shift"] = problem.shift
+        except ProblemError as exc:
+            out["solvable"] = f"no: {str(exc).split(': ', 1)[-1]}"
     if problem.title:
         out["title"] = problem.title
     if problem.description:

@@ -37,7 +37,7 @@ __all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "performance_profile", "ru
 #: Suffixes of the files taken from the folder.
 SUFFIXES = (".hdf5", ".h5", ".dat")
 #: The harness's set plus the non-convex fixed point and ECOS.
-EXTERNAL_SOLVERS = [*DEFAULT_SOLVERS, "ecos", "fp:clarabel"]
+EXTERNAL_SOLVERS = [*DEFAULT_SOLVERS, "ecos", "fp:clarabel-dual"]
 COLUMNS = [*RECORD_KEYS[:-1], "wall_s", "note"]
 
 
