@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 from numpy.typing import NDArray
 from scipy.spatial import KDTree
 
@@ -209,23 +210,51 @@ def contact_jacobian(
         rot = np.zeros((nc, 3, 3))
         rot[:, 1:, :] = -np.cross(contacts.normal[:, None, :], contacts.tangents)
 
-    rows_parts, cols_parts, vals_parts = [], [], []
-    row_base = (np.arange(nc, dtype=np.int64) * m)[:, None, None] + np.arange(m)[None, :, None]
-    for grain, sign in ((contacts.i, 1.0), (contacts.j, -1.0)):
-        grain_first = np.where(grain >= 0, first[np.maximum(grain, 0)], -1)
-        moving = grain_first >= 0
-        block = np.concatenate([sign * frame, rot], axis=2)[moving]  # (k, m, per_grain)
-        cols = grain_first[moving][:, None, None] + np.arange(per_grain)[None, None, :]
-        rows = np.broadcast_to(row_base[moving], block.shape)
-        rows_parts.append(rows.ravel())
-        cols_parts.append(np.broadcast_to(cols, block.shape).ravel())
-        vals_parts.append(block.ravel())
-    H = sp.coo_matrix(
-        (np.concatenate(vals_parts), (np.concatenate(rows_parts), np.concatenate(cols_parts))),
-        shape=(m * nc, ndof),
-    ).tocsr()
-    H.eliminate_zeros()
+    # Each row holds grain i's block then grain j's (when they move): a numba kernel
+    # writes the CSR arrays row by row, without a COO sort.
+    first_i = np.where(contacts.i >= 0, first[np.maximum(contacts.i, 0)], -1).astype(np.int64)
+    first_j = np.where(contacts.j >= 0, first[np.maximum(contacts.j, 0)], -1).astype(np.int64)
+    block = np.ascontiguousarray(np.concatenate([frame, rot], axis=2), dtype=np.float64)
+    indptr, indices, data = _jacobian_csr(block, first_i, first_j, d)
+    H = sp.csr_matrix((data, indices, indptr), shape=(m * nc, ndof))
+    H.sort_indices()
     return H
+
+
+@njit(cache=True)
+def _jacobian_csr(block, first_i, first_j, d):  # pragma: no cover - compiled
+    """CSR arrays of ``H`` from each contact's ``(m, per_grain)`` block for grain i
+    (``-block`` on grain j's translations, ``+block`` on its rotations), zeros
+    dropped; ``first_*`` is -1 for a grain that is not an unknown."""
+    nc, m, per_grain = block.shape
+    nnz = 0
+    for a in range(nc):
+        for k in range(m):
+            for side in range(2):
+                if (first_i[a] if side == 0 else first_j[a]) >= 0:
+                    for c in range(per_grain):
+                        if block[a, k, c] != 0.0:
+                            nnz += 1
+    indptr = np.zeros(nc * m + 1, dtype=np.int64)
+    indices = np.empty(nnz, dtype=np.int64)
+    data = np.empty(nnz)
+    pos = 0
+    for a in range(nc):
+        lo, hi = (first_i[a], first_j[a]) if first_i[a] <= first_j[a] else (first_j[a], first_i[a])
+        for k in range(m):
+            row = a * m + k
+            for start in (lo, hi):  # ascending columns
+                if start < 0:
+                    continue
+                sign = 1.0 if start == first_i[a] else -1.0
+                for c in range(per_grain):
+                    v = block[a, k, c]
+                    if v != 0.0:
+                        indices[pos] = start + c
+                        data[pos] = sign * v if c < d else v
+                        pos += 1
+            indptr[row + 1] = pos
+    return indptr, indices, data
 
 
 def _frames(contacts: ContactSet) -> FloatArray:
