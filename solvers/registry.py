@@ -92,6 +92,15 @@ def _builtin() -> list[SolverInfo]:
             description="Velocity-based primal (COCD) by Clarabel's interior point.",
         ),
         SolverInfo(
+            name="ipm",
+            entry="solvers.ipm_:ipm_solve_problem",
+            requires=("qdldl",),
+            description=(
+                "Velocity-based primal (COCD) by cocd's interior point: Nesterov-Todd "
+                "scaling, reduced SPD system on the velocities, sparse Cholesky."
+            ),
+        ),
+        SolverInfo(
             name="clarabel-dual",
             entry="solvers.clarabel_:clarabel_dual_solve_problem",
             formulation="dual",

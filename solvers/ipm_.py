@@ -1,0 +1,633 @@
+"""``ipm``: a primal-dual interior point for the COCD primal that uses its structure.
+
+The velocity-based primal in standard form (:meth:`cocd.problem.ConicProblem.primal_conic_form`)
+``min 1/2 x'Px  s.t.  A x + s = b,  s in K`` has a diagonal ``P`` (the masses)
+and tiny cones (one row per half-plane in 2D, one second-order cone of
+dimension 3 per contact in 3D). With Nesterov-Todd scaling ``W`` (``W z =
+W^-1 s = lambda``), each Newton step of Mehrotra's predictor-corrector
+reduces to the symmetric positive definite system
+
+    (P + A' Theta A) dx = r,      Theta = (W'W)^-1  (block diagonal, cone by cone)
+
+on the generalized velocities only: a sparse matrix with the pattern of the
+grains' contact graph, whose values a numba kernel writes in one pass over the
+cones (:mod:`solvers._ipm_kernels`) and whose fill-reducing ordering and
+symbolic factorisation are computed once per solve. ``dz`` and ``ds`` follow
+by products with ``A`` and the cone blocks. Predictor and corrector share one
+numerical factorisation per iteration.
+
+Linear solvers (option ``linsolve``), chosen by measurement (8308-disc column,
+upper-triangular ``K`` with 0.27 M entries, L with 2.3 M; one numerical
+factorisation): PARDISO (Intel MKL, through ``pypardiso``, extra
+``pardiso``) 0.040 s on one thread and 0.022 s on two; CHOLMOD (through
+``cvxopt``) 0.043 s; QDLDL 0.19 s. The default is the first installed of
+``pardiso``, ``cholmod``, ``qdldl``.
+
+========================  =====================================================
+cocd                      ipm
+========================  =====================================================
+``tol``                   stops as soon as the framework's ``ccp_residual`` of
+                          the impulses ``z`` is ``<= tol`` (checked every
+                          iteration: a few sparse products)
+``status``                ``optimal`` at the target (after the polish, if
+                          needed); ``max_iter``; ``time_limit``;
+                          ``inaccurate`` when the best residual has not halved
+                          in 6 iterations and the polish
+                          (:mod:`solvers.polish`, off with ``polish=False``)
+                          does not reach the target, or when a factorisation
+                          fails after an iterate was found
+``max_iter``              interior-point iterations (default 100)
+``time_limit``            seconds
+``warm_start``            not used (an interior point starts from the centre)
+``verbose``               one line per iteration
+``**options``             ``linsolve`` (``pardiso``, ``cholmod``, ``qdldl``),
+                          ``threads`` (PARDISO's, default 2), ``polish``
+========================  =====================================================
+
+``extras``: ``linsolve``, ``history`` (iteration, mu, step, ccp_residual),
+``times`` (seconds in assembly, factorisation, solves, residual checks).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from cocd.cones import project_coulomb
+from cocd.errors import ProblemError
+from cocd.residuals import ccp_residual
+from solvers._ipm_kernels import cone_blocks, fill_reduced, pair_positions
+from solvers.base import Solution, Status
+from solvers.polish import polish_impulses
+
+if TYPE_CHECKING:
+    from cocd.problem import ConicProblem
+
+__all__ = ["LINSOLVES", "ReducedSystem", "ipm_solve_problem"]
+
+LINSOLVES = ("pardiso", "cholmod", "qdldl")
+DEFAULT_MAX_ITER = 100
+STEP_FRACTION = 0.99
+STALL_ITERATIONS = 6
+REFINE_STEPS = 6
+_OPTIONS = {"linsolve", "threads", "polish"}
+
+
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def default_linsolve() -> str:
+    if _installed("pypardiso"):
+        return "pardiso"
+    if _installed("cvxopt"):
+        return "cholmod"
+    return "qdldl"
+
+
+# -- linear solvers on the upper-triangular CSR pattern of K ----------------------------
+_PARDISO: list[Any] = []  # one PyPardisoSolver per process: creating one searches for MKL
+
+
+class _Pardiso:
+    """PARDISO through pypardiso's MKL binding, with the 1-based CSR arrays kept."""
+
+    def __init__(self, K: sp.csr_matrix, threads: int) -> None:
+        import pypardiso
+
+        if not _PARDISO:
+            _PARDISO.append(pypardiso.PyPardisoSolver(mtype=2))  # real SPD
+        self.solver = _PARDISO[0]
+        setter = getattr(self.solver.libmkl, "MKL_Set_Num_Threads", None)
+        if setter is not None:
+            setter(ctypes.c_int(threads))
+        self.n = K.shape[0]
+        self.data = np.ascontiguousarray(K.data, dtype=np.float64)
+        self.ia = (K.indptr + 1).astype(np.int32)
+        self.ja = (K.indices + 1).astype(np.int32)
+        self.call(11, np.zeros(self.n))
+
+    def call(self, phase: int, b: Any) -> Any:
+        s = self.solver
+        b = np.ascontiguousarray(b, dtype=np.float64)
+        x = np.zeros_like(b)
+        error = ctypes.c_int32(0)
+        i32 = ctypes.POINTER(ctypes.c_int32)
+        f64 = ctypes.POINTER(ctypes.c_double)
+        s._mkl_pardiso(
+            s.pt.ctypes.data_as(ctypes.POINTER(s._pt_type[0])),
+            ctypes.byref(ctypes.c_int32(1)),
+            ctypes.byref(ctypes.c_int32(1)),
+            ctypes.byref(ctypes.c_int32(s.mtype)),
+            ctypes.byref(ctypes.c_int32(phase)),
+            ctypes.byref(ctypes.c_int32(self.n)),
+            self.data.ctypes.data_as(f64),
+            self.ia.ctypes.data_as(i32),
+            self.ja.ctypes.data_as(i32),
+            s.perm.ctypes.data_as(i32),
+            ctypes.byref(ctypes.c_int32(1)),
+            s.iparm.ctypes.data_as(i32),
+            ctypes.byref(ctypes.c_int32(0)),
+            b.ctypes.data_as(f64),
+            x.ctypes.data_as(f64),
+            ctypes.byref(error),
+        )
+        if error.value != 0:
+            raise np.linalg.LinAlgError(f"PARDISO phase {phase} failed with error {error.value}")
+        return x
+
+    def factor(self, data: Any) -> None:
+        self.data[:] = data
+        self.call(22, np.zeros(self.n))
+
+    def solve(self, rhs: Any) -> Any:
+        return self.call(33, rhs)
+
+    def close(self) -> None:
+        self.call(-1, np.zeros(self.n))
+
+
+class _Cholmod:
+    def __init__(self, K: sp.csr_matrix, threads: int) -> None:
+        from cvxopt import cholmod, matrix, spmatrix
+
+        self.cholmod, self.matrix, self.spmatrix = cholmod, matrix, spmatrix
+        # Upper CSR of K is the lower CSC of K: hand CHOLMOD the lower triangle.
+        n = K.shape[0]
+        self.n = n
+        self.I = matrix(K.indices, tc="i")
+        cols = np.repeat(np.arange(n), np.diff(K.indptr))
+        self.J = matrix(cols, tc="i")
+        self.K = K
+        self.F = cholmod.symbolic(self._matrix(K.data), uplo="L")
+
+    def _matrix(self, data: Any) -> Any:
+        return self.spmatrix(
+            self.matrix(np.ascontiguousarray(data)), self.I, self.J, (self.n, self.n)
+        )
+
+    def factor(self, data: Any) -> None:
+        self.cholmod.numeric(self._matrix(data), self.F)
+
+    def solve(self, rhs: Any) -> Any:
+        B = self.matrix(np.ascontiguousarray(rhs, dtype=np.float64))
+        self.cholmod.solve(self.F, B)
+        return np.array(B).reshape(-1)
+
+    def close(self) -> None:
+        pass
+
+
+class _Qdldl:
+    def __init__(self, K: sp.csr_matrix, threads: int) -> None:
+        # The upper CSR of K read column by column: QDLDL takes the upper CSC.
+        marker = sp.csr_matrix((np.arange(1.0, K.nnz + 1.0), K.indices, K.indptr), K.shape)
+        self.upper_csc = sp.csc_matrix(marker)
+        self.upper_csc.sort_indices()
+        self._perm = (self.upper_csc.data - 1.0).astype(np.int64)
+        self.F: Any = None
+
+    def factor(self, data: Any) -> None:
+        import qdldl
+
+        self.upper_csc.data[:] = np.asarray(data)[self._perm]
+        if self.F is None:
+            self.F = qdldl.Solver(self.upper_csc)
+        else:
+            self.F.update(self.upper_csc)
+
+    def solve(self, rhs: Any) -> Any:
+        return np.asarray(self.F.solve(np.asarray(rhs, dtype=np.float64))).reshape(-1)
+
+    def close(self) -> None:
+        pass
+
+
+_LINEAR = {"pardiso": _Pardiso, "cholmod": _Cholmod, "qdldl": _Qdldl}
+
+
+# -- cones ---------------------------------------------------------------------------
+class _Cones:
+    """``l`` nonnegative rows followed by ``k`` second-order cones of dimension 3."""
+
+    def __init__(self, n_lin: int, k: int) -> None:
+        self.l, self.k = n_lin, k
+        self.degree = n_lin + k
+
+    def split(self, v: Any) -> tuple[Any, Any]:
+        return v[: self.l], v[self.l :].reshape(self.k, 3)
+
+    def join(self, a: Any, b: Any) -> Any:
+        return np.concatenate([a, b.reshape(-1)])
+
+    def identity(self) -> Any:
+        e = np.zeros((self.k, 3))
+        e[:, 0] = 1.0
+        return self.join(np.ones(self.l), e)
+
+    def interior_shift(self, v: Any) -> Any:
+        """``v + (1 + alpha) e`` with ``alpha`` the largest violation, if ``v`` is not interior."""
+        a, b = self.split(v)
+        viol = []
+        if self.l:
+            viol.append(float(-a.min()))
+        if self.k:
+            viol.append(float((np.linalg.norm(b[:, 1:], axis=1) - b[:, 0]).max()))
+        alpha = max(viol) if viol else -1.0
+        if alpha >= -1e-8:
+            return v + (1.0 + alpha) * self.identity()
+        return v
+
+    def scaling(self, s: Any, z: Any) -> dict[str, Any]:
+        """Nesterov-Todd scaling at ``(s, z)``: ``W z = W^-1 s = lambda``."""
+        sl, sq = self.split(s)
+        zl, zq = self.split(z)
+        out: dict[str, Any] = {}
+        out["wl"] = np.sqrt(sl / zl)
+        if self.k:
+            sJs = sq[:, 0] ** 2 - np.sum(sq[:, 1:] ** 2, axis=1)
+            zJz = zq[:, 0] ** 2 - np.sum(zq[:, 1:] ** 2, axis=1)
+            sJs = np.maximum(sJs, 1e-300)
+            zJz = np.maximum(zJz, 1e-300)
+            sb = sq / np.sqrt(sJs)[:, None]
+            zb = zq / np.sqrt(zJz)[:, None]
+            gamma = np.sqrt(np.maximum((1.0 + np.sum(sb * zb, axis=1)) / 2.0, 1e-300))
+            Jz = zb.copy()
+            Jz[:, 1:] *= -1.0
+            wbar = (sb + Jz) / (2.0 * gamma)[:, None]
+            eta = (sJs / zJz) ** 0.25
+            out["wbar"], out["eta"] = wbar, eta
+        return out
+
+    def apply_w(self, sc: dict[str, Any], v: Any, inverse: bool = False) -> Any:
+        """``W v`` (or ``W^-1 v``).
+
+        On a second-order cone, with ``wbar = (a, b)`` (``wbar'J wbar = 1``),
+        ``W = eta [[a, b'], [b, I + b b'/(1 + a)]]`` and ``W^-1 = [[a, -b'],
+        [-b, I + b b'/(1 + a)]] / eta``.
+        """
+        va, vb = self.split(v)
+        ra = va / sc["wl"] if inverse else va * sc["wl"]
+        if not self.k:
+            return self.join(ra, np.zeros((0, 3)))
+        wbar, eta = sc["wbar"], sc["eta"]
+        a, bvec = wbar[:, 0], wbar[:, 1:]
+        v0, v1 = vb[:, 0], vb[:, 1:]
+        bv = np.sum(bvec * v1, axis=1)
+        sign = -1.0 if inverse else 1.0
+        r0 = a * v0 + sign * bv
+        r1 = sign * v0[:, None] * bvec + v1 + (bv / (1.0 + a))[:, None] * bvec
+        scale = 1.0 / eta if inverse else eta
+        rb = scale[:, None] * np.concatenate([r0[:, None], r1], axis=1)
+        return self.join(ra, rb)
+
+    def theta_blocks(self, sc: dict[str, Any], gmax: int) -> Any:
+        """``Theta = W^-2`` per cone, shape ``(l + k, gmax, gmax)``."""
+        G = self.l + self.k
+        theta = np.zeros((G, gmax, gmax))
+        theta[: self.l, 0, 0] = 1.0 / sc["wl"] ** 2
+        if self.k:
+            wbar, eta = sc["wbar"], sc["eta"]
+            a, bvec = wbar[:, 0], wbar[:, 1:]
+            Winv = np.empty((self.k, 3, 3))
+            Winv[:, 0, 0] = a
+            Winv[:, 0, 1:] = -bvec
+            Winv[:, 1:, 0] = -bvec
+            Winv[:, 1:, 1:] = (
+                np.eye(2)[None] + bvec[:, :, None] * bvec[:, None, :] / (1.0 + a)[:, None, None]
+            )
+            Winv /= eta[:, None, None]
+            theta[self.l :, :3, :3] = np.einsum("kij,kjl->kil", Winv, Winv)
+        return theta
+
+    def product(self, u: Any, v: Any) -> Any:
+        """Jordan product ``u o v``."""
+        ua, ub = self.split(u)
+        va, vb = self.split(v)
+        ra = ua * va
+        rb = np.empty_like(ub)
+        rb[:, 0] = np.sum(ub * vb, axis=1)
+        rb[:, 1:] = ub[:, :1] * vb[:, 1:] + vb[:, :1] * ub[:, 1:]
+        return self.join(ra, rb)
+
+    def divide(self, lam: Any, r: Any) -> Any:
+        """``d`` with ``lam o d = r``."""
+        la, lb = self.split(lam)
+        ra, rb = self.split(r)
+        da = ra / la
+        det = lb[:, 0] ** 2 - np.sum(lb[:, 1:] ** 2, axis=1)
+        d0 = (lb[:, 0] * rb[:, 0] - np.sum(lb[:, 1:] * rb[:, 1:], axis=1)) / det
+        d1 = (rb[:, 1:] - lb[:, 1:] * d0[:, None]) / lb[:, :1]
+        return self.join(da, np.concatenate([d0[:, None], d1], axis=1))
+
+    def max_step(self, x: Any, d: Any) -> float:
+        """Largest ``alpha`` with ``x + alpha d`` in the cone (``x`` interior), capped at 1e30."""
+        xa, xb = self.split(x)
+        da, db = self.split(d)
+        best = 1e30
+        neg = da < 0.0
+        if np.any(neg):
+            best = min(best, float(np.min(-xa[neg] / da[neg])))
+        if self.k:
+            c = xb[:, 0] ** 2 - np.sum(xb[:, 1:] ** 2, axis=1)
+            bq = xb[:, 0] * db[:, 0] - np.sum(xb[:, 1:] * db[:, 1:], axis=1)
+            a = db[:, 0] ** 2 - np.sum(db[:, 1:] ** 2, axis=1)
+            disc = bq * bq - a * c
+            cross = (a < 0.0) | ((bq < 0.0) & (disc >= 0.0))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                alpha = np.where(
+                    cross, np.maximum(c, 0.0) / (-bq + np.sqrt(np.maximum(disc, 0.0))), np.inf
+                )
+                lin = np.where(db[:, 0] < 0.0, -xb[:, 0] / db[:, 0], np.inf)
+            alpha = np.minimum(np.where(np.isfinite(alpha) & (alpha >= 0.0), alpha, np.inf), lin)
+            if alpha.size:
+                best = min(best, float(alpha.min()))
+        return best
+
+
+class ReducedSystem:
+    """The pattern and the assembly of ``K = P + A' Theta A`` (upper triangle, CSR).
+
+    Cones are groups of rows of ``A`` (``n_lin`` single rows, then ``k`` groups of
+    three); each keeps its rows densely on the unknowns it touches. The pattern
+    holds every pair of unknowns a cone touches (a second-order cone's block of
+    ``Theta`` couples all of them), built from the cone-unknown incidence ``C`` as
+    ``C'C`` so that no entry vanishes by cancellation (in 2D the rows ``N + mu T``
+    and ``N - mu T`` of a contact cancel in ``A'A``).
+    """
+
+    def __init__(self, A: sp.csr_matrix, n_lin: int, k: int, pdiag: Any) -> None:
+        n = A.shape[1]
+        self.group_start = np.concatenate([np.arange(n_lin), n_lin + 3 * np.arange(k)]).astype(
+            np.int64
+        )
+        self.group_size = np.concatenate([np.ones(n_lin), 3 * np.ones(k)]).astype(np.int64)
+        self.dofs, self.nq, self.local = cone_blocks(A, self.group_start, self.group_size)
+        touched = self.dofs >= 0
+        C = sp.csr_matrix(
+            (np.ones(int(touched.sum())), (np.nonzero(touched)[0], self.dofs[touched])),
+            shape=(self.group_start.size, n),
+        )
+        pattern = sp.csr_matrix(sp.triu(sp.identity(n) + C.T @ C, format="csr"))
+        pattern.sort_indices()
+        pattern.data[:] = 0.0
+        self.pattern = pattern
+        indptr = pattern.indptr.astype(np.int64)
+        self.pos = pair_positions(self.dofs, self.nq, indptr, pattern.indices.astype(np.int64))
+        self.diag_pos = indptr[:-1].copy()  # the diagonal is each row's first upper entry
+        self.base = np.zeros(pattern.nnz)
+        self.base[self.diag_pos] = pdiag
+
+    @property
+    def gmax(self) -> int:
+        return int(self.local.shape[1])
+
+    def fill(self, theta: Any, out: Any = None) -> Any:
+        """The values of ``K`` on :attr:`pattern` for cone blocks ``theta (G, gmax, gmax)``."""
+        if out is None:
+            out = np.empty(self.pattern.nnz)
+        fill_reduced(
+            self.base, self.dofs, self.nq, self.local, self.group_size, theta, self.pos, out
+        )
+        return out
+
+
+# -- the solver ------------------------------------------------------------------------
+def ipm_solve_problem(
+    problem: ConicProblem,
+    *,
+    tol: float = 1e-8,
+    warm_start: Any = None,
+    max_iter: int | None = None,
+    time_limit: float | None = None,
+    verbose: bool = False,
+    **options: Any,
+) -> Solution:
+    """Solve the COCD primal of ``problem`` (see the module's table)."""
+    unknown = set(options) - _OPTIONS
+    if unknown:
+        raise ProblemError(
+            f"ipm has no option {sorted(unknown)[0]!r}; its options are {sorted(_OPTIONS)}"
+        )
+    linsolve = str(options.get("linsolve") or default_linsolve())
+    if linsolve not in _LINEAR:
+        raise ProblemError(f"ipm: linsolve must be one of {LINSOLVES}, got {linsolve!r}")
+    threads = int(options.get("threads", 2))
+    polish = bool(options.get("polish", True))
+    cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
+    start = time.perf_counter()
+    times = {
+        "setup": 0.0,
+        "assemble": 0.0,
+        "factor": 0.0,
+        "solve": 0.0,
+        "check": 0.0,
+        "polish": 0.0,
+    }
+
+    form = problem.primal_conic_form()
+    n_lin = sum(size for kind, size in form.cones if kind == "nonneg")
+    k = sum(1 for kind, _ in form.cones if kind == "soc")
+    if any(kind not in ("nonneg", "soc") for kind, _ in form.cones):
+        raise ProblemError("ipm takes nonnegative and second-order cones only")
+    cones = _Cones(n_lin, k)
+    A = sp.csr_matrix(form.A)
+    A.sort_indices()
+    b = np.asarray(form.b, dtype=np.float64)
+    pdiag = np.asarray(form.P.diagonal(), dtype=np.float64)
+
+    red = ReducedSystem(A, n_lin, k, pdiag)
+    diag_pos, gmax = red.diag_pos, red.gmax
+    K = red.pattern.copy()
+    data = np.empty(red.pattern.nnz)
+    lin: Any = None
+    reg = [0.0]  # the diagonal shift of the last factorisation (relative)
+    times["setup"] = time.perf_counter() - start
+
+    def factor(theta: Any) -> None:
+        t0 = time.perf_counter()
+        red.fill(theta, data)
+        t1 = time.perf_counter()
+        times["assemble"] += t1 - t0
+        nonlocal lin
+        if lin is None:
+            K.data[:] = data
+            lin = _LINEAR[linsolve](K, threads)
+        # K is positive definite (P is), but Theta spans many orders of magnitude near
+        # the end (sliding contacts sit on the cone's boundary): when the factorisation
+        # meets a non-positive pivot, scale the diagonal up by a tiny relative amount
+        # and let iterative refinement (against the unshifted K) recover the accuracy.
+        failure: Exception | None = None
+        for shift in (0.0, 1e-13, 1e-11, 1e-9, 1e-7):
+            trial = data
+            if shift:  # relative to each diagonal entry: K's rows span many scales
+                trial = data.copy()
+                trial[diag_pos] *= 1.0 + shift
+            try:
+                lin.factor(trial)
+                reg[0] = shift
+                break
+            except Exception as exc:  # each library has its own error type
+                failure = exc
+        else:
+            raise np.linalg.LinAlgError(f"ipm: factorisation failed ({failure})")
+        times["factor"] += time.perf_counter() - t1
+
+    def kmul(v: Any) -> Any:
+        At = A.T
+        return pdiag * v + At @ (theta_mul(A @ v))
+
+    theta_cur: list[Any] = [None]
+
+    def theta_mul(v: Any) -> Any:
+        th = theta_cur[0]
+        va, vb = cones.split(v)
+        ra = th[:n_lin, 0, 0] * va
+        rb = np.einsum("kij,kj->ki", th[n_lin:, :3, :3], vb) if k else vb
+        return cones.join(ra, rb)
+
+    def solve_k(rhs: Any) -> Any:
+        t0 = time.perf_counter()
+        x = lin.solve(rhs)
+        if reg[0]:  # the factor is of a shifted K: refine against the exact one
+            target = 1e-13 * float(np.linalg.norm(rhs))
+            for _ in range(REFINE_STEPS):
+                r = rhs - kmul(x)
+                if float(np.linalg.norm(r)) <= target:
+                    break
+                x = x + lin.solve(r)
+        times["solve"] += time.perf_counter() - t0
+        return x
+
+    solve_start = time.perf_counter()
+    history: list[tuple[int, float, float, float]] = []
+    status = Status.MAX_ITER
+    best: tuple[float, Any, Any] | None = None
+    try:
+        # Initial point: Theta = I, x = (P + A'A)^-1 A'b, s = b - A x, z = -s, shifted inside.
+        theta_cur[0] = np.zeros((n_lin + k, gmax, gmax))
+        theta_cur[0][:, range(gmax), range(gmax)] = 1.0
+        theta_cur[0][:n_lin, 1:, 1:] = 0.0
+        factor(theta_cur[0])
+        x = solve_k(A.T @ b)
+        r = b - A @ x
+        s = cones.interior_shift(r.copy())
+        z = cones.interior_shift(-r)
+        stalls = 0
+        it = 0
+        progress: list[float] = []
+        while True:
+            t0 = time.perf_counter()
+            p = form.impulses(z)
+            res = ccp_residual(problem, p)
+            times["check"] += time.perf_counter() - t0
+            mu = float(s @ z) / cones.degree
+            if best is None or res < best[0]:
+                best = (res, x.copy(), z.copy())
+            if verbose:
+                print(f"ipm: {it:3d}  mu {mu:.3e}  ccp_residual {res:.3e}")
+            if res <= tol:
+                status = Status.OPTIMAL
+                break
+            progress.append(best[0])
+            if len(progress) > STALL_ITERATIONS and best[0] > 0.5 * progress[-STALL_ITERATIONS - 1]:
+                # No halving of the best residual in STALL_ITERATIONS iterations.
+                status = Status.INACCURATE
+                break
+            if it >= cap:
+                status = Status.MAX_ITER
+                break
+            if time_limit is not None and time.perf_counter() - start >= time_limit:
+                status = Status.TIME_LIMIT
+                break
+            it += 1
+            rx = pdiag * x + A.T @ z
+            rz = A @ x + s - b
+            sc = cones.scaling(s, z)
+            lam = cones.apply_w(sc, z)
+            theta = cones.theta_blocks(sc, gmax)
+            theta_cur[0] = theta
+            factor(theta)
+
+            def direction(d: Any, sc: Any = sc, rx: Any = rx, rz: Any = rz) -> tuple[Any, Any, Any]:
+                # A dx + ds = -rz;  W dz + W^-1 ds = d;  P dx + A'dz = -rx
+                wd = cones.apply_w(sc, d)
+                rhs = -rx - A.T @ theta_mul(rz + wd)
+                dx = solve_k(rhs)
+                dz = theta_mul(A @ dx + rz + wd)
+                ds = cones.apply_w(sc, d - cones.apply_w(sc, dz))
+                return dx, ds, dz
+
+            # Predictor (affine scaling): d = lambda \ (-lambda o lambda) = -lambda.
+            _, ds_a, dz_a = direction(-lam)
+            alpha_a = min(1.0, cones.max_step(s, ds_a), cones.max_step(z, dz_a))
+            mu_a = float((s + alpha_a * ds_a) @ (z + alpha_a * dz_a)) / cones.degree
+            sigma = min(1.0, max(0.0, mu_a / mu)) ** 3 if mu > 0 else 0.0
+            # Corrector: lambda o (W dz + W^-1 ds)
+            #            = -lambda o lambda - (W^-1 ds_a) o (W dz_a) + sigma mu e
+            rc = (
+                -cones.product(lam, lam)
+                - cones.product(cones.apply_w(sc, ds_a, inverse=True), cones.apply_w(sc, dz_a))
+                + sigma * mu * cones.identity()
+            )
+            dx, ds, dz = direction(cones.divide(lam, rc))
+            alpha = min(1.0, STEP_FRACTION * min(cones.max_step(s, ds), cones.max_step(z, dz)))
+            history.append((it, mu, alpha, res))
+            x = x + alpha * dx
+            s = s + alpha * ds
+            z = z + alpha * dz
+            stalls = stalls + 1 if alpha < 1e-8 else 0
+            if stalls >= 10 or not (np.all(np.isfinite(x)) and np.all(np.isfinite(z))):
+                status = Status.INACCURATE
+                break
+    except (np.linalg.LinAlgError, RuntimeError, ValueError, ArithmeticError) as exc:
+        if best is None:
+            raise
+        status = Status.INACCURATE
+        history.append((len(history) + 1, float("nan"), 0.0, float("nan")))
+        if verbose:
+            print(f"ipm: stopped: {type(exc).__name__}: {exc}")
+    finally:
+        if lin is not None:
+            lin.close()
+    assert best is not None
+    res_best, _, z_best = best
+    p_out = form.impulses(z if status == Status.OPTIMAL else z_best)
+    polished = False
+    if status != Status.OPTIMAL and polish and np.all(np.isfinite(p_out)):
+        # Degenerate contacts (sliding on the cone's boundary) stall an interior
+        # point short of the target: finish with the active-set Newton polish.
+        t0 = time.perf_counter()
+        candidate, info = polish_impulses(problem, project_coulomb(p_out, problem.mu), target=tol)
+        times["polish"] = time.perf_counter() - t0
+        if info["ccp_after"] < res_best:
+            p_out, res_best, polished = candidate, info["ccp_after"], info["accepted"] > 0
+            if res_best <= tol:
+                status = Status.OPTIMAL
+    solve_time = time.perf_counter() - solve_start
+    return Solution(
+        u=problem.velocity(p_out),
+        p=p_out,
+        status=status,
+        iterations=len(history),
+        setup_time=times["setup"],
+        solve_time=solve_time,
+        solver="ipm",
+        extras={
+            "native_status": status.value,
+            "linsolve": linsolve,
+            "history": history,
+            "times": times,
+            "ccp_residual": ccp_residual(problem, p_out),
+            "polished": polished,
+            "x_velocity_scale": form.velocity_scale,
+        },
+    )
