@@ -127,6 +127,23 @@ def test_table1_timeout_is_a_row(tmp_path, cache):
     assert "time_limit" in row.note and "1 not run" in row.note
 
 
+def test_table1_row_budget_stops_a_row(tmp_path, cache):
+    # Any solve takes more than a nanosecond: each row stops after its first step.
+    df = table1.run(
+        solvers="clarabel",
+        time_limit=60.0,
+        out=tmp_path / "results",
+        progress=lambda line: None,
+        row_budget=1e-9,
+        **{**TINY, "scale": 0.0004},
+    )
+    row = df[df.source == "this machine"].iloc[0]
+    assert row.steps_ok == "1/2"
+    assert "row budget of 1e-09 s spent after 1 steps" in row.note
+    with pytest.raises(CocdError, match="row budget must be > 0"):
+        table1.run(solvers="clarabel", time_limit=60.0, out=tmp_path, row_budget=0.0, **TINY)
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [

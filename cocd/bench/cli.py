@@ -89,6 +89,20 @@ def table1(
             "--resume", help="Keep the rows already in OUT/table1.csv; solve only the others."
         ),
     ] = False,
+    row_budget: Annotated[
+        float | None,
+        typer.Option(
+            "--row-budget", help="Seconds of solving after which a row stops (slow backends)."
+        ),
+    ] = None,
+    trajectory: Annotated[
+        str | None,
+        typer.Option(
+            "--trajectory",
+            help="Backend that steps each column to the recorded steps (default: clarabel, "
+            "clarabel-dual in 3D).",
+        ),
+    ] = None,
     out: Out = Path("results"),
 ) -> None:
     """The seed's Table 1: iterations and time per step against N, dt and eps."""
@@ -100,6 +114,8 @@ def table1(
             scale=scale,
             scale_3d=scale_3d,
             resume=resume,
+            trajectory_solver=trajectory,
+            row_budget=row_budget,
             cases=[c.strip() for c in cases.split(",") if c.strip()],
             steps=steps,
             time_limit=time_limit,
@@ -239,6 +255,56 @@ def external(
             memory_gb=memory_gb,
             out=out,
             coulomb_target=coulomb_target,
+        ),
+        out,
+    )
+
+
+def _ints(text: str, what: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise CocdError(f"{what} must be comma-separated integers, got {text!r}") from None
+    if any(v < 1 for v in values):
+        raise CocdError(f"{what} must be positive integers, got {text!r}")
+    return values
+
+
+@bench_app.command()
+def scaling(
+    solvers: Solvers = None,
+    n2d: Annotated[
+        str, typer.Option("--n2d", help="2D column sizes (comma-separated; empty for none).")
+    ] = "1109,8308,20488,50772",
+    n3d: Annotated[
+        str, typer.Option("--n3d", help="3D static box sizes (comma-separated; empty for none).")
+    ] = "2000,8000,32000",
+    steps: Annotated[int, typer.Option("--steps", help="Problems timed per size.")] = 3,
+    trajectory: Annotated[
+        str, typer.Option("--trajectory", help="Backend that steps the 2D columns.")
+    ] = "ipm",
+    table1: Annotated[
+        Path | None,
+        typer.Option("--table1", help="Take the 2D rows from this table1.csv instead."),
+    ] = None,
+    time_limit: TimeLimit = 900.0,
+    memory_gb: MemoryGb = None,
+    out: Out = Path("results"),
+) -> None:
+    """Time per step against N per backend (2D column, 3D static box), with fitted exponents."""
+    from cocd.bench import scaling as mod
+
+    _run(
+        lambda: mod.run(
+            solvers=solvers,
+            n2d=_ints(n2d, "--n2d"),
+            n3d=_ints(n3d, "--n3d"),
+            steps=steps,
+            time_limit=time_limit,
+            memory_gb=memory_gb,
+            out=out,
+            trajectory=trajectory,
+            table1=table1,
         ),
         out,
     )

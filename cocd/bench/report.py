@@ -38,6 +38,7 @@ __all__ = [
 #: Sections of the README, in this order; other names follow alphabetically.
 ORDER = [
     "table1",
+    "scaling",
     "stability",
     "precision",
     "hard",
@@ -63,6 +64,10 @@ PACKAGES = [
     "highspy",
     "quadprog",
     "mosek",
+    "qdldl",
+    "cvxopt",
+    "pypardiso",
+    "h5py",
 ]
 
 

@@ -115,6 +115,7 @@ def run(
     progress: Callable[[str], None] = print,
     scale_3d: float | None = None,
     resume: bool = False,
+    row_budget: float | None = None,
 ) -> pd.DataFrame:
     """Run the Table 1 cases with every selected backend; write ``table1.csv/.md/.meta.json``.
 
@@ -156,6 +157,9 @@ def run(
         case, N, eps and backend) instead of solving them again. The table is
         rewritten after every row, so an interrupted run resumes where it
         stopped.
+    row_budget : float, optional
+        Seconds of solving after which a row stops (a slow backend on a large
+        case); its means are over the steps solved and its note says so.
 
     Returns
     -------
@@ -170,6 +174,8 @@ def run(
         time limit or memory cap, or an unknown backend.
     """
     scale, steps, wanted = _check(scale, cases, steps, time_limit, memory_gb)
+    if row_budget is not None and not (math.isfinite(row_budget) and row_budget > 0):
+        raise CocdError(f"row budget must be > 0 seconds, got {row_budget!r}")
     scale_3d, _, _ = _check(scale if scale_3d is None else scale_3d, cases, steps, time_limit, None)
     cap = default_memory_gb() if memory_gb is None else float(memory_gb)
     done = _previous_rows(Path(out) / "table1.csv") if resume else {}
@@ -232,6 +238,7 @@ def run(
             done=done,
             emit=emit,
             prep_tol=prep_tol,
+            row_budget=row_budget,
         )
     table = write()
     progress(f"table1: done in {time.perf_counter() - start:.0f} s")
@@ -257,6 +264,7 @@ def _case(
     done: dict[tuple[int, int, float, str], dict[str, Any]],
     emit: Callable[[dict[str, Any]], None],
     prep_tol: float | None = None,
+    row_budget: float | None = None,
 ) -> None:
     """Record one case's step problems, then run every backend on them at every eps.
 
@@ -324,7 +332,9 @@ def _case(
                 # Imports and JIT compilation in the worker would otherwise be timed
                 # as part of the first step.
                 worker.solve_row(warmup, name, eps, time_limit=time_limit)
-                stats = _solver_rows(worker, seq, name, eps, time_limit, label, progress)
+                stats = _solver_rows(
+                    worker, seq, name, eps, time_limit, label, progress, row_budget
+                )
                 row = {**base, "eps": eps, "solver": name, **stats}
                 if stats["first_status"] == "time_limit":
                     timed_out_at[name] = eps
@@ -339,11 +349,18 @@ def _solver_rows(
     time_limit: float,
     label: str,
     progress: Callable[[str], None],
+    row_budget: float | None = None,
 ) -> dict[str, Any]:
-    """Solve every problem of ``seq`` with ``name``; the statistics of one table row."""
+    """Solve every problem of ``seq`` with ``name``; the statistics of one table row.
+
+    With ``row_budget``, the row stops once its solves have taken that many
+    seconds; its means are over the steps solved, and its note says so.
+    """
     warm = _takes_warm_start(name, seq)
     answers: list[dict[str, Any]] = []
     total = len(seq.problems)
+    spent = 0.0
+    stopped = ""
     for k, problem in enumerate(seq.problems):
         ws = seq.warm_starts[k] if warm else None
         row = worker.solve_row(problem, name, eps, warm_start=ws, time_limit=time_limit)
@@ -356,7 +373,11 @@ def _solver_rows(
         if k == 0 and row["status"] in _FAILED:
             # The first problem is like the others: the rest would fail the same way.
             break
-    return _summarise(answers, total, warm)
+        spent += float(row.get("wall_s") or 0.0)
+        if row_budget is not None and spent >= row_budget and k + 1 < total:
+            stopped = f"row budget of {row_budget:g} s spent after {k + 1} steps"
+            break
+    return _summarise(answers, total, warm, stopped)
 
 
 def _ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -395,7 +416,9 @@ def _takes_warm_start(name: str, seq: StepSequence) -> bool:
     return bool(solvers.get(name).warm_start) and any(w is not None for w in seq.warm_starts)
 
 
-def _summarise(answers: list[dict[str, Any]], total: int, warm: bool) -> dict[str, Any]:
+def _summarise(
+    answers: list[dict[str, Any]], total: int, warm: bool, stopped: str = ""
+) -> dict[str, Any]:
     """Means (iterations, wall time) over returned solves, max residuals, and what went wrong."""
     statuses = [str(a.get("status")) for a in answers]
     returned = [a for a, s in zip(answers, statuses, strict=True) if s in _RETURNED]
@@ -406,7 +429,9 @@ def _summarise(answers: list[dict[str, Any]], total: int, warm: bool) -> dict[st
         notes.append(", ".join(f"{s} on {c} step{'s' * (c > 1)}" for s, c in bad.items()))
     details = {str(a.get("note") or "") for a in answers} - {""}
     notes += sorted(details)
-    if len(answers) < total:
+    if stopped:
+        notes.append(stopped)
+    elif len(answers) < total:
         notes.append(f"stopped after the first problem ({total - len(answers)} not run)")
     return {
         "warm": "yes" if warm else "no",

@@ -1,0 +1,113 @@
+"""``cocd bench scaling`` on tiny sizes: rows, fits, files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from cocd.bench import scaling
+from cocd.cli import app
+from cocd.errors import CocdError
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    path = tmp_path / "cache"
+    monkeypatch.setenv("COCD_CACHE", str(path))
+    return path
+
+
+def test_fit_exponent_recovers_a_power_law():
+    n = np.array([100, 1000, 10000])
+    k, c = scaling.fit_exponent(n, 3e-4 * n**1.4)
+    assert k == pytest.approx(1.4) and c == pytest.approx(3e-4)
+    assert np.isnan(scaling.fit_exponent([100], [1.0])[0])
+
+
+def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
+    monkeypatch.setattr(scaling, "T_START_2D", 0.005)
+    out = tmp_path / "results"
+    table = scaling.run(
+        solvers="ipm,clarabel",
+        n2d=[30, 60],
+        n3d=[8, 27],
+        steps=2,
+        time_limit=60.0,
+        memory_gb=None,
+        out=out,
+        trajectory="clarabel",
+        progress=lambda line: None,
+    )
+    assert len(table) == 8
+    assert set(table.solver) == {"ipm", "clarabel"}
+    assert (table.steps_ok == "2/2").all()
+    assert (table.ccp_residual[table.dim == 2] <= 1e-8).all()
+    assert (table.ccp_residual[table.dim == 3] <= 1e-5).all()
+    assert (table.detect_assemble_s[table.dim == 3] > 0).all()
+    fits = pd.read_csv(out / "scaling.csv")
+    assert len(fits) == 8
+    text = (out / "scaling_fit.md").read_text()
+    assert "exponent" in text and "ipm" in text
+    assert (out / "scaling.png").stat().st_size > 5000
+    with pytest.raises(CocdError, match="steps must be >= 1"):
+        scaling.run(
+            solvers="ipm", n2d=[30], n3d=[], steps=0, time_limit=1.0, memory_gb=None, out=out
+        )
+
+
+def test_scaling_cli_rejects_bad_sizes(tmp_path):
+    result = CliRunner().invoke(app, ["bench", "scaling", "--n2d", "10,x", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "--n2d must be comma-separated integers" in result.output
+
+
+def test_scaling_takes_2d_rows_from_table1(tmp_path, cache):
+    rows = [
+        dict(
+            source="this machine",
+            dim=2,
+            N=n,
+            Nc=3.0 * n,
+            solver="ipm",
+            eps=1e-8,
+            steps_ok="10/10",
+            iterations=20.0,
+            time_per_step_s=1e-4 * n**1.2,
+            ccp_residual=1e-9,
+            note="",
+        )
+        for n in (1000, 8000)
+    ] + [
+        dict(
+            source="seed (Mosek, 2x8 cores)",
+            dim=2,
+            N=8308,
+            Nc=37331.0,
+            solver="mosek",
+            eps=1e-8,
+            steps_ok="",
+            iterations=47.0,
+            time_per_step_s=8.85,
+            ccp_residual=None,
+            note="",
+        )
+    ]
+    path = tmp_path / "table1.csv"
+    pd.DataFrame(rows).to_csv(path, index=False)
+    table = scaling.run(
+        solvers="ipm",
+        n2d=[],
+        n3d=[8],
+        steps=1,
+        time_limit=60.0,
+        memory_gb=None,
+        out=tmp_path / "out",
+        table1=path,
+        progress=lambda line: None,
+    )
+    two = table[table.dim == 2]
+    assert list(two.N) == [1000, 8000] and (two.note.str.startswith("from table1.csv")).all()
+    fit = scaling.fits(table)
+    k = fit[(fit.dim == 2) & (fit.solver == "ipm")].exponent.iloc[0]
+    assert k == pytest.approx(1.2)
