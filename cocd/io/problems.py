@@ -92,6 +92,13 @@ def _label(source: str, kind: str) -> str:
     return source or f"{kind} problem"
 
 
+def _dimension(dim: Any, where: str) -> int:
+    try:
+        return int(dim)
+    except (TypeError, ValueError):
+        raise ProblemError(f"{where}: dimension must be 2 or 3, got {dim!r}") from None
+
+
 def _vector(name: str, x: ArrayLike, size: int, where: str) -> FloatArray:
     a = np.asarray(x, dtype=np.float64).reshape(-1)
     if a.size != size:
@@ -165,10 +172,7 @@ class LocalProblem:
 
     def __post_init__(self) -> None:
         where = _label(self.source, "local")
-        try:
-            self.dim = int(self.dim)
-        except (TypeError, ValueError):
-            raise ProblemError(f"{where}: dimension must be 2 or 3, got {self.dim!r}") from None
+        self.dim = _dimension(self.dim, where)
         shape = getattr(self.W, "shape", None)
         if shape is None or len(shape) != 2 or shape[0] != shape[1]:
             raise ProblemError(f"{where}: W must be a square matrix, got shape {shape}")
@@ -268,10 +272,7 @@ class GlobalProblem:
 
     def __post_init__(self) -> None:
         where = _label(self.source, "global")
-        try:
-            self.dim = int(self.dim)
-        except (TypeError, ValueError):
-            raise ProblemError(f"{where}: dimension must be 2 or 3, got {self.dim!r}") from None
+        self.dim = _dimension(self.dim, where)
         f = np.asarray(self.f, dtype=np.float64).reshape(-1)
         w = np.asarray(self.w, dtype=np.float64).reshape(-1)
         self.nc, self.mu = _check_common(self.dim, self.mu, w.size, where)
