@@ -106,11 +106,7 @@ def solve_external(
     solver, a problem the backend does not take (dimension, cones) or a local
     problem whose ``W`` is not symmetric raise a :class:`~cocd.errors.CocdError`.
     """
-    info = solvers.get(solver)  # unknown names fail here, listing the known ones
-    if problem.dim not in info.dims:
-        raise ProblemError(
-            f"solver {solver!r} handles dimensions {info.dims}, not a {problem.dim}D problem"
-        )
+    solvers.get(solver)  # unknown names fail here, before the conversion
     start = time.perf_counter()
     conic = problem.conic  # may raise ProblemError (e.g. a non-symmetric W)
     convert = time.perf_counter() - start

@@ -444,6 +444,7 @@ def ipm_solve_problem(
     b = np.asarray(form.b, dtype=np.float64)
     pdiag = np.asarray(form.P.diagonal(), dtype=np.float64)
 
+    At = sp.csr_matrix(A.T)  # A' is applied several times per iteration
     red = ReducedSystem(A, n_lin, k, pdiag)
     diag_pos, gmax = red.diag_pos, red.gmax
     K = red.pattern.copy()
@@ -482,7 +483,6 @@ def ipm_solve_problem(
         times["factor"] += time.perf_counter() - t1
 
     def kmul(v: Any) -> Any:
-        At = A.T
         return pdiag * v + At @ (theta_mul(A @ v))
 
     theta_cur: list[Any] = [None]
@@ -517,7 +517,7 @@ def ipm_solve_problem(
         theta_cur[0][:, range(gmax), range(gmax)] = 1.0
         theta_cur[0][:n_lin, 1:, 1:] = 0.0
         factor(theta_cur[0])
-        x = solve_k(A.T @ b)
+        x = solve_k(At @ b)
         r = b - A @ x
         s = cones.interior_shift(r.copy())
         z = cones.interior_shift(-r)
@@ -549,7 +549,7 @@ def ipm_solve_problem(
                 status = Status.TIME_LIMIT
                 break
             it += 1
-            rx = pdiag * x + A.T @ z
+            rx = pdiag * x + At @ z
             rz = A @ x + s - b
             sc = cones.scaling(s, z)
             lam = cones.apply_w(sc, z)
@@ -560,7 +560,7 @@ def ipm_solve_problem(
             def direction(d: Any, sc: Any = sc, rx: Any = rx, rz: Any = rz) -> tuple[Any, Any, Any]:
                 # A dx + ds = -rz;  W dz + W^-1 ds = d;  P dx + A'dz = -rx
                 wd = cones.apply_w(sc, d)
-                rhs = -rx - A.T @ theta_mul(rz + wd)
+                rhs = -rx - At @ theta_mul(rz + wd)
                 dx = solve_k(rhs)
                 dz = theta_mul(A @ dx + rz + wd)
                 ds = cones.apply_w(sc, d - cones.apply_w(sc, dz))
@@ -628,6 +628,5 @@ def ipm_solve_problem(
             "times": times,
             "ccp_residual": ccp_residual(problem, p_out),
             "polished": polished,
-            "x_velocity_scale": form.velocity_scale,
         },
     )

@@ -167,17 +167,14 @@ def performance_profile(
     ``solved`` marks the rows that count; the problems are those any solver solved
     (a problem nobody solves says nothing about relative speed).
     """
+    from cocd.bench.precision import performance_profile as profile_of_costs
+
     t = table.assign(t=np.where(solved, table["wall_s"], np.inf))
     times = t.pivot_table(index="problem", columns="solver", values="t", aggfunc="min")
     times = times.replace(np.nan, np.inf)
-    best = times.min(axis=1)
-    times = times[np.isfinite(best)]
-    best = best[np.isfinite(best)]
-    out = {}
-    for solver in times.columns:
-        ratio = (times[solver] / best).to_numpy()
-        out[str(solver)] = np.array([np.mean(ratio <= tau) if ratio.size else 0.0 for tau in taus])
-    return out
+    times = times[np.isfinite(times.min(axis=1))]
+    fractions = profile_of_costs(times.to_numpy(dtype=np.float64), taus)
+    return {str(solver): fractions[:, k] for k, solver in enumerate(times.columns)}
 
 
 def _write(
