@@ -24,10 +24,14 @@ heavy grains alike (the Jacobi preconditioner of the framework's ``rho``).
 The natural map in these variables is ``S`` times the framework's one, so the
 stopping test costs no extra product.
 
-``W`` is never formed: ``W x = H (M^-1 (H'x))`` with scipy sparse products;
-the numba kernels of :mod:`solvers._kernels` do the per-contact work
-(projected step, natural map). The starting ``L`` is a 10-step power
-iteration on ``S W S`` (20 products).
+``W`` is never formed: ``W x = H (M^-1 (H'x))``. Each iteration is a few
+fused passes of the multi-threaded numba kernels of
+:mod:`solvers._apgd_kernels` (projected step and its length, the two sparse
+products, the differences with the restart tests' inner products, the
+extrapolation, the natural map): about 25 ms per iteration for 374 000 3D
+contacts on two cores, against 43 ms for the scipy products and vector
+operations they replace. The starting ``L`` is a 10-step power iteration on
+``S W S`` (20 products).
 
 ========================  =====================================================
 cocd                      APGD
@@ -53,10 +57,10 @@ cocd                      APGD
 ========================  =====================================================
 
 Cost per iteration: two sparse products (``H'd`` and ``H (M^-1 H'd)`` for the
-step ``d = x+ - y``; gradients and objective differences follow by linearity),
-one projection, about fifteen vector operations of length ``m nc``. The
-gradient is recomputed from scratch every 100 iterations to stop rounding
-drift.
+step ``d = x+ - y``; gradients and objective differences follow by linearity,
+the Delassus shift included), one projection, four passes over the ``m nc``
+impulses. The gradient is recomputed from scratch every 100 iterations to stop
+rounding drift.
 
 ``extras["history"]`` holds ``dp`` (per iteration: the largest change of an
 impulse component over the rms of ``rho b``), ``lipschitz`` (``L`` of the
@@ -75,7 +79,15 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from cocd.residuals import ccp_residual
-from solvers._kernels import projected_step, scaled_natural_map_sq
+from solvers._apgd_kernels import (
+    csr_matvec,
+    csr_scaled_matvec_add,
+    differences,
+    extrapolate,
+    scaled_natural_map_sq_par,
+    step_and_length,
+    weighted_square,
+)
 from solvers.base import Solution, Status
 from solvers.pgs_ import impulse_rms, positive_int, ratio, reject_options, start_impulses
 
@@ -118,7 +130,6 @@ def apgd_solve_problem(
     check_every = positive_int(check_every, "check_every")
     cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
 
-    nc, m = problem.nc, problem.contact_dim
     s = np.sqrt(problem.rho)
     s_col = s[:, None]
     scaled = _ScaledDual(problem, s)
@@ -133,7 +144,9 @@ def apgd_solve_problem(
     deadline = None if time_limit is None else start + float(time_limit)
     mu = problem.mu
     y, g_y = x.copy(), g_x.copy()
-    x_new = np.empty_like(x)
+    x_new, g_new = np.empty_like(x), np.empty_like(x)
+    d, delta, dg = np.empty_like(x), np.empty_like(x), np.empty_like(x)
+    zd = np.empty(scaled.HT.shape[0])
     theta = 1.0
     dp_history: list[float] = []
     l_history: list[float] = []
@@ -141,7 +154,7 @@ def apgd_solve_problem(
     check_ccp: list[float] = []
     restarts = backtracks = 0
 
-    r = ratio(math.sqrt(scaled_natural_map_sq(x, g_x, s, mu)), rb_norm)
+    r = ratio(math.sqrt(scaled_natural_map_sq_par(x, g_x, s, mu)), rb_norm)
     best_x, best_r = x.copy(), r
     check_iter.append(0)
     check_ccp.append(r)
@@ -158,28 +171,24 @@ def apgd_solve_problem(
         k += 1
         # Projected step from y, with backtracking on the Lipschitz estimate L.
         while True:
-            projected_step(y, g_y, 1.0 / L, mu, x_new)
-            d = x_new - y
-            zd = scaled.HT @ d.reshape(-1)
-            dWd = float(zd @ (scaled.inv_mass * zd))
-            dd = float(np.vdot(d, d))
+            dd = step_and_length(y, g_y, 1.0 / L, mu, x_new, d)
+            dWd = scaled.curvature(d, zd, dd)
             if dWd <= L * dd or not math.isfinite(dWd):
                 break
             L *= 2.0
             backtracks += 1
-        g_new = g_y + (scaled.H @ (scaled.inv_mass * zd)).reshape(nc, m)
-        delta = x_new - x
-        dg = g_new - g_x
-        df = float(np.vdot(g_x, delta)) + 0.5 * float(np.vdot(delta, dg))
+        scaled.update_gradient(g_y, zd, d, g_new)  # g(x_new) = g(y) + S W S d
+        df, g_map, biggest = differences(x_new, x, g_new, g_x, g_y, s, delta, dg)
         if k % RESYNC_EVERY == 0:
-            g_new, dg = scaled.gradient(x_new), scaled.product(delta)
-        dp_history.append(float(np.max(np.abs(delta) * s_col, initial=0.0)) / impulse_scale)
+            g_new[:] = scaled.gradient(x_new)
+            dg[:] = scaled.product(delta)
+        dp_history.append(biggest / impulse_scale)
         l_history.append(L)
         if not math.isfinite(df):
             status, native = Status.ERROR, "non-finite iterate"
             break
         if k % check_every == 0 or k == cap:
-            r = ratio(math.sqrt(scaled_natural_map_sq(x_new, g_new, s, mu)), rb_norm)
+            r = ratio(math.sqrt(scaled_natural_map_sq_par(x_new, g_new, s, mu)), rb_norm)
             check_iter.append(k)
             check_ccp.append(r)
             if r < best_r:
@@ -191,21 +200,21 @@ def apgd_solve_problem(
                     status, native = Status.OPTIMAL, "converged"
                     break
                 # The test may have read a drifted gradient.
-                g_new, dg = scaled.gradient(x_new), scaled.product(delta)
+                g_new[:] = scaled.gradient(x_new)
+                dg[:] = scaled.product(delta)
         if verbose and k % _VERBOSE_EVERY == 0:
             print(f"apgd: iteration {k:6d}  ccp {r:9.3e}  L {L:9.3e}  restarts {restarts}")
         # Momentum, restarted when the objective or the gradient-mapping test goes up.
-        if df > 0.0 or float(np.vdot(g_y, delta)) > 0.0:
+        if df > 0.0 or g_map > 0.0:
             restarts += 1
             theta, beta = 1.0, 0.0
         else:
             theta_next = 0.5 * (-theta * theta + theta * math.sqrt(theta * theta + 4.0))
             beta = theta * (1.0 - theta) / (theta * theta + theta_next)
             theta = theta_next
-        y = x_new + beta * delta
-        g_y = g_new + beta * dg
+        extrapolate(x_new, delta, g_new, dg, beta, y, g_y)
         x, x_new = x_new, x
-        g_x = g_new
+        g_x, g_new = g_new, g_x
         L *= L_SHRINK
     solve_time = time.perf_counter() - solve_start
 
@@ -246,16 +255,39 @@ class _ScaledDual:
         self.shape = (nc, m)
         self.H = sp.csr_matrix(sp.diags(rows) @ problem.H)
         self.HT = sp.csr_matrix(self.H.T)
-        self.inv_mass = 1.0 / problem.mass
+        self.inv_mass = np.ascontiguousarray(1.0 / problem.mass, dtype=np.float64)
         self.b = (rows * problem.b).reshape(nc, m)
         # W = H M^-1 H' - delassus_shift I: S (-shift I) S q = -shift s^2 q.
         self.diagonal = (problem.delassus_shift * s**2)[:, None]
+        self.shifted = bool(self.diagonal.any())
 
     def product(self, q: FloatArray) -> FloatArray:
         """``S W S q`` for ``q`` of shape ``(nc, m)``."""
-        z = self.HT @ q.reshape(-1)
-        out = np.asarray(self.H @ (self.inv_mass * z)).reshape(self.shape)
-        return out - self.diagonal * q if self.diagonal.any() else out
+        z = np.empty(self.HT.shape[0])
+        csr_matvec(self.HT.indptr, self.HT.indices, self.HT.data, q.reshape(-1), z)
+        out = np.empty(self.shape)
+        zero = np.zeros(self.H.shape[0])
+        self._apply_h(z, zero, out)
+        return out - self.diagonal * q if self.shifted else out
+
+    def curvature(self, d: FloatArray, z: FloatArray, dd: float) -> float:
+        """``d' S W S d`` (``dd = |d|^2``); leaves ``z = H'S d`` for :meth:`update_gradient`."""
+        csr_matvec(self.HT.indptr, self.HT.indices, self.HT.data, d.reshape(-1), z)
+        value = weighted_square(z, self.inv_mass)
+        if self.shifted:
+            value -= float(np.sum(self.diagonal * d * d))
+        return value
+
+    def update_gradient(self, g: FloatArray, z: FloatArray, d: FloatArray, out: FloatArray) -> None:
+        """``out = g + S W S d`` from ``z = H'S d`` (:meth:`curvature`)."""
+        self._apply_h(z, g.reshape(-1), out)
+        if self.shifted:
+            out -= self.diagonal * d
+
+    def _apply_h(self, z: FloatArray, base: FloatArray, out: FloatArray) -> None:
+        """``out = base + S H M^-1 z`` (``out`` of shape ``(nc, m)``)."""
+        H = self.H
+        csr_scaled_matvec_add(H.indptr, H.indices, H.data, self.inv_mass, z, base, out.reshape(-1))
 
     def gradient(self, q: FloatArray) -> FloatArray:
         """``S W S q + S b``."""

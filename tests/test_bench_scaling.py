@@ -46,6 +46,8 @@ def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
     assert (table.ccp_residual[table.dim == 2] <= 1e-8).all()
     assert (table.ccp_residual[table.dim == 3] <= 1e-5).all()
     assert (table.detect_assemble_s[table.dim == 3] > 0).all()
+    solved = table[table.dim == 3]
+    assert ((solved.peak_rss_gib > 0.05) & (solved.peak_rss_gib < 8)).all()
     fits = pd.read_csv(out / "scaling.csv")
     assert len(fits) == 8
     text = (out / "scaling_fit.md").read_text()
@@ -55,6 +57,26 @@ def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
         scaling.run(
             solvers="ipm", n2d=[30], n3d=[], steps=0, time_limit=1.0, memory_gb=None, out=out
         )
+
+
+def test_scaling_skips_larger_sizes_after_a_time_limit(tmp_path):
+    # A time limit no backend can meet: apgd stops on it at the first size and
+    # is not tried at the next one.
+    table = scaling.run(
+        solvers="apgd",
+        n2d=[],
+        n3d=[8, 27],
+        steps=1,
+        time_limit=1e-9,
+        memory_gb=None,
+        out=tmp_path,
+        progress=lambda line: None,
+    )
+    assert list(table.N) == [8, 27]
+    first, second = table.iloc[0], table.iloc[1]
+    assert first.steps_ok == "0/1" and "time_limit" in first.note
+    assert second.steps_ok == "0/1" and second.note == "skipped: time limit at N = 8"
+    assert np.isnan(second.time_per_step_s)
 
 
 def test_scaling_cli_rejects_bad_sizes(tmp_path):

@@ -12,7 +12,8 @@ child was killed and ``error`` when the backend raised), ``iterations``,
 ``setup_s``, ``solve_s`` (the backend's own set-up and solve times),
 ``wall_s`` (the whole call, set-up and refinement included), ``ccp_residual``,
 ``coulomb_residual``, ``dynamics_residual``, ``u_error``, ``polished``,
-``note``. Rows without an answer carry NaN residuals.
+``note``. Rows without an answer carry NaN residuals. Rows from a
+:class:`Worker` also carry ``peak_rss_gib``, the child's peak resident memory.
 """
 
 from __future__ import annotations
@@ -170,7 +171,10 @@ def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
                 cached = None  # free the previous problem before loading the next
                 with open(path, "rb") as f:
                     cached = (path, pickle.load(f))
-            answers.put(solve_row(cached[1], **kwargs))
+            row = solve_row(cached[1], **kwargs)
+            # The child's peak resident memory so far (Linux reports KiB).
+            row["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+            answers.put(row)
         except MemoryError:
             cached = None
             answers.put({"status": "error", "note": f"out of memory (cap {memory_gb:g} GiB)"})
@@ -211,6 +215,11 @@ class Worker:
 
     def close(self) -> None:
         """Stop the child and delete the problem files."""
+        self.restart()
+        self._dir.cleanup()
+
+    def restart(self) -> None:
+        """Stop the child (a new one starts with the next job): its peak memory starts afresh."""
         if self._proc is not None and self._proc.is_alive():
             self._jobs.put(None)
             self._proc.join(timeout=5)
@@ -218,7 +227,6 @@ class Worker:
                 self._proc.kill()
                 self._proc.join()
         self._proc = None
-        self._dir.cleanup()
 
     def _start(self) -> None:
         self._jobs, self._answers = self._ctx.Queue(), self._ctx.Queue()
