@@ -19,6 +19,7 @@ does for QPs). A polished answer is kept only if it lowers ``ccp_residual``.
 
 from __future__ import annotations
 
+import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -45,29 +46,37 @@ def polish_impulses(
     p: NDArray[np.float64],
     target: float = 0.0,
     max_steps: int = 3,
+    time_budget: float | None = None,
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Polish impulses ``p`` (shape ``(nc, m)``) by active-set Newton steps.
 
     Near a degenerate contact the state read from ``p - rho w`` depends on the
     weight given to ``w``: each step tries the weights ``rho x (1, 1e2, 1e4)``
-    and keeps the best answer, stopping once ``ccp_residual <= target``.
+    and keeps the best answer, stopping once ``ccp_residual <= target``, and
+    starting no new Newton solve once ``time_budget`` seconds have passed (a
+    sparse factorisation of a large problem costs seconds each).
 
     Returns
     -------
     p : (nc, m) array
         The best impulses found (``p`` itself if no step helped).
     info : dict
-        ``steps`` taken, ``accepted`` steps, ``ccp_before`` and ``ccp_after``.
+        ``steps`` taken, ``accepted`` steps, ``ccp_before`` and ``ccp_after``,
+        ``out_of_time`` when the budget cut it short.
     """
+    start = time.perf_counter()
     best = np.asarray(p, dtype=np.float64).reshape(problem.nc, problem.contact_dim)
     best_r = ccp_residual(problem, best)
-    info: dict[str, Any] = {"steps": 0, "accepted": 0, "ccp_before": best_r}
+    info: dict[str, Any] = {"steps": 0, "accepted": 0, "ccp_before": best_r, "out_of_time": False}
     for _ in range(max_steps):
         if best_r <= target:
             break
         info["steps"] += 1
         improved = False
         for weight in STATE_WEIGHTS:
+            if time_budget is not None and time.perf_counter() - start > time_budget:
+                info["out_of_time"] = True
+                break
             candidate = _newton_step(problem, best, weight)
             if candidate is None:
                 continue

@@ -127,6 +127,14 @@ def test_sliding_contact_is_finished_by_the_polish():
     assert sol.u[0] == pytest.approx(scene.velocities[0, 0] + g * 1e-3, rel=1e-4)
     unpolished = solvers.solve(problem, "ipm", tol=1e-10, polish=False)
     assert unpolished.extras["polished"] is False
+    # The polish starts no Newton solve once its time budget is spent.
+    from solvers.polish import polish_impulses
+
+    p0 = unpolished.p
+    same, info = polish_impulses(problem, p0, target=1e-10, time_budget=0.0)
+    assert info["out_of_time"] and info["accepted"] == 0 and np.array_equal(same, p0)
+    done, info = polish_impulses(problem, p0, target=1e-10, time_budget=60.0)
+    assert not info["out_of_time"] and info["ccp_after"] <= 1e-10
 
 
 def test_bad_options_are_named():
