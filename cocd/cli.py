@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,9 +20,7 @@ from rich.table import Table
 
 import solvers
 from cocd.bench.cli import bench_app
-from cocd.builders import column_2d
 from cocd.errors import CocdError
-from cocd.stepper import Stepper, StepRecord
 
 app = typer.Typer(
     add_completion=False,
@@ -35,6 +34,10 @@ problem_app = typer.Typer(
     help="Single-step problems from other tools: FCLib HDF5 and Siconos text files.",
 )
 app.add_typer(problem_app, name="problem")
+export_app = typer.Typer(
+    add_completion=False, no_args_is_help=True, help="Export a run file for other tools."
+)
+app.add_typer(export_app, name="export")
 console = Console(soft_wrap=True)
 
 
@@ -52,63 +55,189 @@ def main(ctx: typer.Context) -> None:
 
 @app.command()
 def run(
-    n: Annotated[int, typer.Option("--n", help="Number of discs in the column.")] = 300,
-    steps: Annotated[int, typer.Option("--steps", help="Number of time steps.")] = 100,
-    dt: Annotated[float, typer.Option("--dt", help="Time step (s).")] = 1e-3,
-    solver: Annotated[str, typer.Option("--solver", help="Backend (see `cocd solvers`).")] = (
-        "clarabel"
-    ),
-    tol: Annotated[float, typer.Option("--tol", help="Backend tolerance.")] = 1e-8,
-    mu: Annotated[float, typer.Option("--mu", help="Friction coefficient.")] = 0.3,
-    every: Annotated[int, typer.Option("--every", help="Print one step in EVERY.")] = 1,
-    out: Annotated[
-        Path | None, typer.Option("--out", help="Write the per-step table (CSV).")
+    scene: Annotated[
+        Path | None,
+        typer.Argument(help="Scene file (TOML, see examples/); default: a 2D collapse."),
     ] = None,
+    solver: Annotated[
+        str | None, typer.Option("--solver", help="Backend (see `cocd solvers`).")
+    ] = None,
+    tol: Annotated[float | None, typer.Option("--tol", help="Backend tolerance.")] = None,
+    until: Annotated[
+        float | None, typer.Option("--until", help="Simulated time at the end (s).")
+    ] = None,
+    steps: Annotated[
+        int | None, typer.Option("--steps", help="Number of steps (instead of --until).")
+    ] = None,
+    dt: Annotated[float | None, typer.Option("--dt", help="Time step (s).")] = None,
+    frame_every: Annotated[
+        int | None, typer.Option("--frame-every", help="Steps between saved frames.")
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Output folder (default cocd-runs/<scene name>)."),
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Continue the run in --out from its last frame.")
+    ] = False,
 ) -> None:
-    """Collapse of a 2D column of discs (aspect 0.7, 20 cm wide) released at t = 0."""
+    """Run a scene file and write OUT/run.h5 (frames, contacts, statistics) and OUT/stats.csv.
+
+    Options given here override the scene file's [run] table. Without a scene
+    file: the collapse of a 2D column of 300 discs for 0.1 s.
+    """
+    from cocd.config import DEFAULT_CONFIG, build_scene, load_config, parse_config
+    from cocd.runs import run as run_scene
+
     try:
-        if n < 1 or steps < 0 or every < 1:
-            raise CocdError(
-                f"need --n >= 1, --steps >= 0, --every >= 1 (got {n}, {steps}, {every})"
-            )
-        scene = column_2d(n, mu=mu)
-        stepper = Stepper(scene, dt, solver=solver, tol=tol)
+        if scene is None:
+            config, name, text = parse_config(DEFAULT_CONFIG, "default scene"), "default", ""
+        else:
+            config, name = load_config(scene), scene.stem
+            text = scene.read_text(encoding="utf-8")
+        overrides: dict[str, Any] = {
+            k: v
+            for k, v in dict(
+                solver=solver, tol=tol, until=until, steps=steps, dt=dt, frame_every=frame_every
+            ).items()
+            if v is not None
+        }
+        if steps is not None:
+            overrides["until"] = None
+        elif until is not None:
+            overrides["steps"] = None
+        data = config.model_dump()
+        data["run"].update(overrides)
+        config = parse_config(data, "command line")
+        import solvers as registry
+
+        registry.get(config.run.solver)  # an unknown backend fails before any work
+        folder = out if out is not None else Path("cocd-runs") / name
+        source = str(scene) if scene is not None else "default scene"
+        fresh = not (resume and (folder / "run.h5").exists())
+        built = build_scene(config, source) if fresh else None  # bad parameters fail here
+        rc = config.run
+        console.print(
+            f"{name}: {config.builder}({', '.join(f'{k}={v}' for k, v in config.params.items())})"
+            f"; dt = {rc.dt:g} s, {config.n_steps()} steps, solver {rc.solver}, tol {rc.tol:g}"
+            f" -> {folder / 'run.h5'}",
+            highlight=False,
+        )
+        with _ProgressDisplay() as display:
+            summary = run_scene(
+                config, folder, resume=resume, scene_file=text, progress=display.update,
+                source=source, scene=built,
+            )  # fmt: skip
     except CocdError as exc:
         _fail(exc)
         return
-    console.print(
-        f"2D column: {scene.n_grains} discs, mean radius {scene.radii.mean() * 1e3:.2f} mm, "
-        f"mu = {mu:g}; dt = {dt:g} s, solver {solver}, tol {tol:g}"
-    )
-    console.print(
-        f"{'step':>5} {'t (s)':>7} {'Nc':>6} {'iter':>5} {'solve (s)':>9} "
-        f"{'ccp':>9} {'coulomb':>9} {'Ek (J/m)':>10} {'status':>10}"
-    )
+    from cocd.io.runfile import RunFile
 
-    def show(r: StepRecord) -> None:
-        if r.step % every == 0 or r.step == steps:
-            console.print(
-                f"{r.step:5d} {r.t:7.4f} {r.nc:6d} {r.iterations:5d} {r.solve_time:9.4f} "
-                f"{r.ccp_residual:9.2e} {r.coulomb_residual:9.2e} {r.kinetic_energy:10.3e} "
-                f"{r.status:>10}",
-                highlight=False,
-            )
-
-    try:
-        stepper.run(steps, callback=show)
-    except CocdError as exc:
-        _fail(exc)
-    stats = stepper.stats()
+    with RunFile(summary.path) as rf:
+        stats = rf.stats()
+    stats.to_csv(summary.path.with_name("stats.csv"), index=False)
+    if summary.resumed_from_step:
+        console.print(f"resumed from step {summary.resumed_from_step}", highlight=False)
     if len(stats):
         console.print(
-            f"mean over {len(stats)} steps: Nc {stats.nc.mean():.0f}, iterations "
-            f"{stats.iterations.mean():.1f}, solve {stats.solve_time.mean():.4f} s/step, "
-            f"max ccp_residual {stats.ccp_residual.max():.2e}",
+            f"{summary.steps} steps, {summary.frames} frames; mean Nc {stats.nc.mean():.0f}, "
+            f"iterations {stats.iterations.mean():.1f}, solve {stats.solve_time.mean():.4f} s/step"
+            f", max ccp_residual {stats.ccp_residual.max():.2e}; wrote {summary.path} and "
+            f"{summary.path.with_name('stats.csv')}",
             highlight=False,
         )
-    if out is not None:
-        stats.to_csv(out, index=False)
-        console.print(f"wrote {out}")
+
+
+class _ProgressDisplay:
+    """A rich progress bar on a terminal; a plain line every few seconds otherwise."""
+
+    EVERY = 5.0  # seconds between plain lines
+
+    def __init__(self) -> None:
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeRemainingColumn,
+        )
+
+        self.live = console.is_terminal
+        self.last_line = -float("inf")
+        self.task: Any = None
+        self.bar = Progress(
+            TextColumn("step"),
+            MofNCompleteColumn(),
+            BarColumn(),
+            TextColumn("{task.fields[info]}"),
+            TimeRemainingColumn(),
+            console=console,
+            disable=not self.live,
+        )
+
+    def __enter__(self) -> _ProgressDisplay:
+        self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.bar.__exit__(None, None, None)
+
+    def update(self, p: Any) -> None:
+        r = p.record
+        rate = p.steps_this_call / p.elapsed if p.elapsed > 0 else float("nan")
+        info = (
+            f"t {r.t:.4f} s  Nc {r.nc}  it {r.iterations}  ccp {r.ccp_residual:.1e}  "
+            f"{rate:.2f} steps/s"
+        )
+        if self.live:
+            if self.task is None:
+                self.task = self.bar.add_task("run", total=p.total, completed=p.done, info=info)
+            self.bar.update(self.task, completed=p.done, total=p.total, info=info)
+            return
+        now = time.perf_counter()
+        if now - self.last_line >= self.EVERY or p.done == p.total:
+            self.last_line = now
+            left = (p.total - p.done) / rate if rate > 0 else float("nan")
+            console.print(f"step {p.done}/{p.total}  {info}  {left:.0f} s left", highlight=False)
+
+
+@export_app.command("vtu")
+def export_vtu_command(
+    run_file: Annotated[Path, typer.Argument(help="A run file (run.h5) of `cocd run`.")],
+    every: Annotated[int, typer.Option("--every", help="Export one frame in EVERY.")] = 1,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Output folder (default: RUN_FILE's, vtu/).")
+    ] = None,
+) -> None:
+    """VTU files per frame and PVD series for ParaView: grains as points, contacts as lines."""
+    from cocd.export import export_vtu
+
+    folder = out if out is not None else run_file.parent / "vtu"
+    try:
+        paths = export_vtu(run_file, folder, every=every)
+    except CocdError as exc:
+        _fail(exc)
+        return
+    console.print(f"wrote {', '.join(str(p) for p in paths)} (open them in ParaView)")
+
+
+@app.command("plot")
+def plot_command(
+    run_file: Annotated[Path, typer.Argument(help="A run file (run.h5) of `cocd run`.")],
+    kind: Annotated[str, typer.Argument(help="profiles, front, energy or stats.")],
+    out: Annotated[
+        Path | None, typer.Option("--out", help="PNG file (default: KIND.png beside RUN_FILE).")
+    ] = None,
+) -> None:
+    """Draw a figure of a run: mass profiles, front position, energies or step statistics."""
+    from cocd.plots import plot_run
+
+    try:
+        path = plot_run(run_file, kind, out)
+    except CocdError as exc:
+        _fail(exc)
+        return
+    console.print(f"wrote {path}")
 
 
 @app.command("solvers")

@@ -147,6 +147,22 @@ class Stepper:
         self.contacts: ContactSet | None = None
         self.problem: ConicProblem | None = None
         self.solution: solvers.Solution | None = None
+        #: The last step's contact keys and impulses: the next step's warm start.
+        self.previous: tuple[NDArray[np.int64], FloatArray] | None = None
+
+    def restore(
+        self,
+        records: list[StepRecord],
+        previous: tuple[NDArray[np.int64], FloatArray] | None,
+    ) -> None:
+        """Continue a run: the steps taken so far and the last step's contact keys and
+        impulses (the warm start of the next step), e.g. read from a run file.
+
+        With the scene in the state it had after those steps, the next steps
+        are those the uninterrupted run would have taken.
+        """
+        self.records = list(records)
+        self.previous = None if previous is None else (previous[0], previous[1])
 
     @property
     def step_count(self) -> int:
@@ -161,8 +177,8 @@ class Stepper:
         detect_time = time.perf_counter() - start
 
         p0 = None
-        if self.warm_start and self.contacts is not None and self.solution is not None:
-            p0 = match_impulses(self.contacts.keys, self.solution.p, contacts.keys)
+        if self.warm_start and self.previous is not None:
+            p0 = match_impulses(*self.previous, contacts.keys)
             if p0.shape[1] != problem.contact_dim:
                 p0 = None
         solution = solvers.solve(
@@ -209,6 +225,7 @@ class Stepper:
             potential_energy=potential_energy(scene),
         )
         self.contacts, self.problem, self.solution = contacts, problem, solution
+        self.previous = (contacts.keys, solution.p)
         self.records.append(record)
         if self.fclib_dir is not None and (self.fclib_steps is None or k in self.fclib_steps):
             self.export_step(self.fclib_dir / f"step_{k:06d}.hdf5")

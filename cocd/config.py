@@ -1,0 +1,231 @@
+"""Scene files: a TOML description of a run, validated, and the scene it builds.
+
+A scene file names a builder of :mod:`cocd.builders` with its arguments and the
+run's parameters::
+
+    builder = "column_collapse"          # a function of cocd.builders
+
+    [params]                             # its keyword arguments
+    dim = 2
+    n_grains = 300
+    mu = 0.3
+
+    [run]
+    dt = 1e-3                            # time step (s)
+    until = 0.2                          # simulated time at the end (s)
+    solver = "clarabel"                  # see `cocd solvers`
+    tol = 1e-8
+    frame_every = 10                     # steps between saved frames
+    warm_start = true
+    [run.solver_options]                 # backend options, passed as they are
+
+Every key is checked (pydantic): an unknown key, a value of the wrong type or
+out of range gives a :class:`ConfigError` whose message names the file, the key
+and the reason, in one line. Builder arguments are checked against the
+builder's signature, then by the builder itself (negative sizes, ...).
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import math
+import typing
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pydantic
+import tomllib
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from cocd import builders
+from cocd.errors import CocdError
+from cocd.scene import Scene
+
+__all__ = [
+    "BUILDERS",
+    "DEFAULT_CONFIG",
+    "ConfigError",
+    "RunConfig",
+    "RunSection",
+    "build_scene",
+    "load_config",
+    "parse_config",
+]
+
+#: The builders a scene file may name.
+BUILDERS: dict[str, Callable[..., Scene]] = {
+    name: getattr(builders, name)
+    for name in (
+        "column_2d",
+        "column_collapse",
+        "stack",
+        "box_3d",
+        "static_box",
+        "heavy_on_light",
+        "tall_stack",
+        "jammed_box",
+        "wedged_grain",
+        "fast_impact",
+        "size_ratio",
+        "zero_gap",
+    )
+}
+
+
+class ConfigError(CocdError, ValueError):
+    """A scene file is missing, unreadable or invalid; the message names the key."""
+
+
+class RunSection(BaseModel):
+    """The ``[run]`` table: how to advance the scene and what to save."""
+
+    model_config = ConfigDict(extra="forbid", strict=False)
+
+    dt: float = Field(1e-3, gt=0.0, description="time step (s)")
+    until: float | None = Field(None, gt=0.0, description="simulated time at the end (s)")
+    steps: int | None = Field(None, ge=0, description="number of steps (instead of until)")
+    solver: str = "clarabel"
+    tol: float = Field(1e-8, gt=0.0)
+    frame_every: int = Field(10, ge=1, description="steps between saved frames")
+    warm_start: bool = True
+    max_iter: int | None = Field(None, ge=1)
+    solver_options: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("dt", "until", "tol")
+    @classmethod
+    def _finite(cls, value: float | None) -> float | None:
+        if value is not None and not math.isfinite(value):
+            raise ValueError("must be finite")
+        return value
+
+
+class RunConfig(BaseModel):
+    """A whole scene file: the builder, its arguments and the ``[run]`` table."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    builder: str
+    params: dict[str, Any] = Field(default_factory=dict)
+    run: RunSection = Field(default_factory=lambda: RunSection.model_validate({}))
+
+    @field_validator("builder")
+    @classmethod
+    def _known_builder(cls, value: str) -> str:
+        if value not in BUILDERS:
+            raise ValueError(f"unknown builder {value!r}; one of {', '.join(sorted(BUILDERS))}")
+        return value
+
+    def n_steps(self, start_time: float = 0.0) -> int:
+        """Steps from ``start_time`` to the end (``until``, else ``steps``, else 100)."""
+        run = self.run
+        if run.until is not None:
+            return max(0, math.ceil((run.until - start_time) / run.dt - 1e-9))
+        return 100 if run.steps is None else run.steps
+
+    def resolved(self) -> dict[str, Any]:
+        """The configuration with every default filled in (builder defaults too), as JSON data."""
+        signature = inspect.signature(BUILDERS[self.builder])
+        params = {
+            name: p.default
+            for name, p in signature.parameters.items()
+            if p.default is not inspect.Parameter.empty
+        }
+        params.update(self.params)
+        data = self.model_dump()
+        data["params"] = params
+        return json.loads(json.dumps(data, default=str))
+
+
+#: The scene of ``cocd run`` without a scene file: a small 2D column collapse.
+DEFAULT_CONFIG: dict[str, Any] = {
+    "builder": "column_2d",
+    "params": {"n_grains": 300, "mu": 0.3},
+    "run": {"dt": 1e-3, "until": 0.1, "solver": "clarabel", "tol": 1e-8, "frame_every": 10},
+}
+
+
+def _where(loc: tuple[Any, ...]) -> str:
+    return ".".join(str(part) for part in loc) or "(top level)"
+
+
+def parse_config(data: Any, source: str = "scene file") -> RunConfig:
+    """Validate a scene file's content (a dict, as read from TOML)."""
+    try:
+        config = RunConfig.model_validate(data)
+    except pydantic.ValidationError as exc:
+        first = exc.errors()[0]
+        loc = _where(first["loc"])
+        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+        message = str(first["msg"]).removeprefix("Value error, ")
+        if first["type"] == "extra_forbidden":
+            message = "unknown key"
+        raise ConfigError(f"{source}: {loc}: {message}{more}") from None
+    _check_params(config, source)
+    return config
+
+
+def _check_params(config: RunConfig, source: str) -> None:
+    """The builder's arguments against its signature: names first, then types."""
+    builder = BUILDERS[config.builder]
+    signature = inspect.signature(builder)
+    for key in config.params:
+        if key not in signature.parameters:
+            known = ", ".join(signature.parameters)
+            raise ConfigError(
+                f"{source}: params.{key}: unknown argument of {config.builder} (known: {known})"
+            )
+    try:
+        _validator(builder)(**config.params)
+    except pydantic.ValidationError as exc:
+        first = exc.errors()[0]
+        loc = ".".join(str(part) for part in first["loc"] if not isinstance(part, int))
+        message = str(first["msg"]).removeprefix("Value error, ")
+        raise ConfigError(f"{source}: params.{loc}: {message}") from None
+
+
+def _validator(builder: Callable[..., Scene]) -> Callable[..., None]:
+    """A function with the builder's signature that only checks argument types."""
+    signature = inspect.signature(builder)
+
+    def check(**kwargs: Any) -> None:
+        return None
+
+    hints = typing.get_type_hints(builder)
+    params = [
+        p.replace(annotation=hints.get(name, Any)) for name, p in signature.parameters.items()
+    ]
+    check.__signature__ = signature.replace(  # type: ignore[attr-defined]
+        parameters=params, return_annotation=None
+    )
+    check.__annotations__ = {p.name: p.annotation for p in params}
+    return pydantic.validate_call(config=ConfigDict(arbitrary_types_allowed=True))(check)
+
+
+def load_config(path: str | Path) -> RunConfig:
+    """Read and validate a scene file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"scene file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read scene file {path}: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return parse_config(data, str(path))
+
+
+def build_scene(config: RunConfig, source: str = "scene file") -> Scene:
+    """The scene the configuration's builder makes from its arguments.
+
+    The builder's own checks (negative sizes, overlaps, ...) become a
+    :class:`ConfigError` naming the file and the builder.
+    """
+    try:
+        return BUILDERS[config.builder](**config.params)
+    except (CocdError, TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: params of {config.builder}: {exc}") from None

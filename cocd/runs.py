@@ -1,0 +1,145 @@
+"""Runs: a scene file in, a run file out, resumable after a crash.
+
+:func:`run` builds the scene a :class:`~cocd.config.RunConfig` describes,
+advances it with a :class:`~cocd.stepper.Stepper` and writes a run file
+(:mod:`cocd.io.runfile`): a frame every ``frame_every`` steps (and the last
+step), the statistics of every step. With ``resume=True`` it continues a run
+file from its last complete frame; the steps it then takes are the ones the
+uninterrupted run would have taken (same state, same warm start), so it ends
+in the same final state.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cocd.config import RunConfig, build_scene
+from cocd.io.runfile import RunFile, RunFileError, RunWriter
+from cocd.scene import Scene
+from cocd.stepper import Stepper, StepRecord
+
+__all__ = ["RUN_FILE", "Progress", "RunSummary", "run"]
+
+#: Name of the run file in the output folder.
+RUN_FILE = "run.h5"
+
+#: Keys of the resolved configuration that may change when a run is resumed.
+_RESUMABLE_CHANGES = {"until", "steps"}
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What a progress display is told after every step."""
+
+    record: StepRecord
+    done: int  # steps taken, this call and before
+    total: int  # steps of the whole run
+    elapsed: float  # wall seconds of this call
+    steps_this_call: int
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    path: Path
+    steps: int
+    frames: int
+    resumed_from_step: int
+    wall_time: float
+
+
+def run(
+    config: RunConfig,
+    out: str | Path,
+    *,
+    resume: bool = False,
+    scene_file: str = "",
+    progress: Callable[[Progress], None] | None = None,
+    source: str = "scene file",
+    scene: Scene | None = None,
+) -> RunSummary:
+    """Advance the configured scene to its end, writing ``out/run.h5``.
+
+    Without ``resume`` an existing run file in ``out`` is replaced. With it,
+    the run continues from the file's last complete frame; the file's
+    configuration must be the same as ``config`` except ``until``/``steps``
+    (a finished run resumed with a later ``until`` goes on). With ``resume``
+    and no run file in ``out``, the run starts afresh. ``scene``: the scene
+    the configuration builds, if already built (it is advanced in place).
+    """
+    path = Path(out) / RUN_FILE
+    resolved = config.resolved()
+    rc = config.run
+    if resume and path.exists():
+        with RunFile(path) as old:
+            _check_same(old.config, resolved, path)
+        writer = RunWriter.resume(path)
+        with RunFile(path) as rf:
+            scene = rf.scene(-1)
+            last = rf.frame(-1)
+            records = rf.records()
+            previous = (last.keys, last.impulse[:, : rf.contact_dim]) if last.step > 0 else None
+            frames = rf.n_frames
+        start_step = last.step
+    else:
+        if scene is None:
+            scene = build_scene(config, source)
+        writer = RunWriter.create(path, scene, resolved, scene_file)
+        records, previous, frames, start_step = [], None, 1, 0
+    try:
+        stepper = Stepper(
+            scene,
+            rc.dt,
+            solver=rc.solver,
+            tol=rc.tol,
+            warm_start=rc.warm_start,
+            max_iter=rc.max_iter,
+            solver_options=rc.solver_options,
+        )
+        stepper.restore(records, previous)
+        total = config.n_steps()  # steps of the whole run, from t = 0
+        begin = time.perf_counter()
+        taken = 0
+        while stepper.step_count < total:
+            record = stepper.step()
+            taken += 1
+            writer.append_stats(record)
+            if record.step % rc.frame_every == 0 or record.step == total:
+                assert stepper.solution is not None
+                writer.append_frame(record.step, scene, stepper.contacts, stepper.solution.p)
+                frames += 1
+            if progress is not None:
+                progress(Progress(record, record.step, total, time.perf_counter() - begin, taken))
+        wall = time.perf_counter() - begin
+    finally:
+        writer.close()
+    return RunSummary(path, stepper.step_count, frames, start_step, wall)
+
+
+def _check_same(old: dict[str, Any], new: dict[str, Any], path: Path) -> None:
+    """Refuse to resume a run file with another scene or other run parameters."""
+    if old.get("builder") != new.get("builder") or old.get("params") != new.get("params"):
+        raise RunFileError(
+            f"cannot resume {path}: it holds a run of another scene "
+            f"({old.get('builder')} {old.get('params')})"
+        )
+    old_run, new_run = old.get("run", {}), new.get("run", {})
+    for key in sorted(set(old_run) | set(new_run)):
+        if key in _RESUMABLE_CHANGES:
+            continue
+        if not _equal(old_run.get(key), new_run.get(key)):
+            raise RunFileError(
+                f"cannot resume {path}: run.{key} was {old_run.get(key)!r}, "
+                f"now {new_run.get(key)!r}"
+            )
+
+
+def _equal(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float):
+        return bool(np.isclose(a, b, rtol=1e-12, atol=0.0))
+    return bool(a == b)
