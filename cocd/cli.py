@@ -80,6 +80,12 @@ def run(
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue the run in --out from its last frame.")
     ] = False,
+    fallback: Annotated[
+        str | None,
+        typer.Option(
+            "--fallback", help="Backends tried in turn when a step fails (comma-separated)."
+        ),
+    ] = None,
 ) -> None:
     """Run a scene file and write OUT/run.h5 (frames, contacts, statistics) and OUT/stats.csv.
 
@@ -102,6 +108,8 @@ def run(
             ).items()
             if v is not None
         }
+        if fallback is not None:
+            overrides["fallback"] = [name for name in fallback.split(",") if name]
         if steps is not None:
             overrides["until"] = None
         elif until is not None:
@@ -111,7 +119,8 @@ def run(
         config = parse_config(data, "command line")
         import solvers as registry
 
-        registry.get(config.run.solver)  # an unknown backend fails before any work
+        for backend in (config.run.solver, *config.run.fallback):
+            registry.get(backend)  # an unknown backend fails before any work
         folder = out if out is not None else Path("cocd-runs") / name
         source = str(scene) if scene is not None else "default scene"
         fresh = not (resume and (folder / "run.h5").exists())
@@ -238,6 +247,69 @@ def plot_command(
         _fail(exc)
         return
     console.print(f"wrote {path}")
+
+
+@app.command("sweep")
+def sweep_command(
+    sweep_file: Annotated[Path, typer.Argument(help="Sweep file (TOML): scenes and grid axes.")],
+    workers: Annotated[
+        int | None,
+        typer.Option("--workers", help="Worker processes of the local cluster (default: cores)."),
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler", help="Address of an existing Dask scheduler (tcp://host:8786)."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Output folder (default results/sweeps/<name>).")
+    ] = None,
+) -> None:
+    """Run a grid of short runs on Dask; one Parquet file per cell; finished cells are skipped."""
+    from cocd.sweep import load_sweep, run_sweep
+
+    try:
+        if workers is not None and scheduler is not None:
+            raise CocdError("give --workers or --scheduler, not both")
+        if workers is not None and workers < 1:
+            raise CocdError(f"--workers must be >= 1, got {workers}")
+        spec = load_sweep(sweep_file)
+        folder = out if out is not None else Path("results") / "sweeps" / spec.name
+        display = _SweepDisplay()
+        summary = run_sweep(
+            spec, folder, workers=workers, scheduler=scheduler, progress=display.update
+        )
+    except CocdError as exc:
+        _fail(exc)
+        return
+    if summary.ran == 0:
+        console.print(f"{summary.cells} cells, all finished before: nothing to do")
+    console.print(
+        f"{summary.cells} cells: {summary.ran} run, {summary.skipped} already done, "
+        f"{summary.failed} failed; {summary.wall_time:.1f} s; wrote {folder / spec.name}.parquet, "
+        f".csv and .md",
+        highlight=False,
+    )
+
+
+class _SweepDisplay:
+    """One line per finished cell (with the count and the rate)."""
+
+    def __init__(self) -> None:
+        self.start = time.perf_counter()
+        self.first: int | None = None
+
+    def update(self, done: int, total: int, cell: str) -> None:
+        if self.first is None:
+            self.first = done - 1
+        elapsed = time.perf_counter() - self.start
+        rate = (done - self.first) / elapsed if elapsed > 0 else float("nan")
+        left = (total - done) / rate if rate > 0 else float("nan")
+        console.print(
+            f"cell {done}/{total} done ({cell}); {rate:.2f} cells/s, {left:.0f} s left",
+            highlight=False,
+        )
 
 
 @app.command("solvers")

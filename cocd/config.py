@@ -17,6 +17,9 @@ run's parameters::
     tol = 1e-8
     frame_every = 10                     # steps between saved frames
     warm_start = true
+    fallback = ["clarabel"]              # backends tried in turn when a step fails
+    residual_factor = 1000               # a step fails above this multiple of tol
+    energy_factor = 100                  # ... or when its kinetic energy blows up
     [run.solver_options]                 # backend options, passed as they are
 
 Every key is checked (pydantic): an unknown key, a value of the wrong type or
@@ -30,7 +33,6 @@ from __future__ import annotations
 import inspect
 import json
 import math
-import typing
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -42,6 +44,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from cocd import builders
 from cocd.errors import CocdError
 from cocd.scene import Scene
+from cocd.validation import argument_checker
 
 __all__ = [
     "BUILDERS",
@@ -92,6 +95,9 @@ class RunSection(BaseModel):
     warm_start: bool = True
     max_iter: int | None = Field(None, ge=1)
     solver_options: dict[str, Any] = Field(default_factory=dict)
+    fallback: list[str] = Field(default_factory=list, description="backends tried on failure")
+    residual_factor: float | None = Field(1e3, ge=1.0)
+    energy_factor: float | None = Field(100.0, ge=1.0)
 
     @field_validator("dt", "until", "tol")
     @classmethod
@@ -177,30 +183,12 @@ def _check_params(config: RunConfig, source: str) -> None:
                 f"{source}: params.{key}: unknown argument of {config.builder} (known: {known})"
             )
     try:
-        _validator(builder)(**config.params)
+        argument_checker(builder)(**config.params)
     except pydantic.ValidationError as exc:
         first = exc.errors()[0]
         loc = ".".join(str(part) for part in first["loc"] if not isinstance(part, int))
         message = str(first["msg"]).removeprefix("Value error, ")
         raise ConfigError(f"{source}: params.{loc}: {message}") from None
-
-
-def _validator(builder: Callable[..., Scene]) -> Callable[..., None]:
-    """A function with the builder's signature that only checks argument types."""
-    signature = inspect.signature(builder)
-
-    def check(**kwargs: Any) -> None:
-        return None
-
-    hints = typing.get_type_hints(builder)
-    params = [
-        p.replace(annotation=hints.get(name, Any)) for name, p in signature.parameters.items()
-    ]
-    check.__signature__ = signature.replace(  # type: ignore[attr-defined]
-        parameters=params, return_annotation=None
-    )
-    check.__annotations__ = {p.name: p.annotation for p in params}
-    return pydantic.validate_call(config=ConfigDict(arbitrary_types_allowed=True))(check)
 
 
 def load_config(path: str | Path) -> RunConfig:

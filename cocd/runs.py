@@ -100,6 +100,9 @@ def run(
             warm_start=rc.warm_start,
             max_iter=rc.max_iter,
             solver_options=rc.solver_options,
+            fallback=rc.fallback,
+            residual_factor=rc.residual_factor,
+            energy_factor=rc.energy_factor,
         )
         stepper.restore(records, previous)
         total = config.n_steps()  # steps of the whole run, from t = 0

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,7 +22,7 @@ from cocd.contacts import ContactSet, detect_contacts
 from cocd.errors import ProblemError, SolverError
 from cocd.measure import kinetic_energy, potential_energy
 from cocd.problem import ConicProblem, assemble, scatter_velocity
-from cocd.residuals import residuals
+from cocd.residuals import Residuals, residuals
 from cocd.scene import DEFAULT_OVERLAP_TOL, Scene
 
 if TYPE_CHECKING:
@@ -54,6 +54,9 @@ class StepRecord:
     complementarity_max: float
     kinetic_energy: float
     potential_energy: float
+    #: Backends of the fallback chain that failed this step, with the reason
+    #: ("" when the first one answered).
+    failures: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -95,6 +98,22 @@ class Stepper:
         so that other tools can solve cocd's steps (:mod:`cocd.io.fclib`).
     fclib_steps : collection of int, optional
         Which step numbers (1-based) to write; every step when ``None``.
+    fallback : sequence of str
+        The failure policy. Empty (default): a failed step raises
+        :class:`SolverError` naming the step and the backend. Otherwise the
+        backends tried in turn when the one before fails; the statistics record
+        which backend answered (``solver``) and why the others failed
+        (``failures``); when every one fails, :class:`SolverError` names them all.
+    residual_factor : float or None
+        A step fails when its residual (``ccp_residual``; ``coulomb_residual``
+        for the non-convex backends) is above ``residual_factor * tol``
+        (default 1000; ``None``: not checked). Not checked for the answers of
+        approximate models (``extras["approximation"]``, e.g. faceted cones).
+    energy_factor : float or None
+        A step fails when the kinetic energy after it is above
+        ``energy_factor`` times the larger of the energy before it and the
+        energy of the free velocity ``U`` (default 100: a blow-up; ``None``:
+        not checked). Non-finite velocities or impulses always fail.
     """
 
     def __init__(
@@ -112,6 +131,9 @@ class Stepper:
         overlap_tol: float = DEFAULT_OVERLAP_TOL,
         fclib_dir: str | os.PathLike[str] | None = None,
         fclib_steps: Collection[int] | None = None,
+        fallback: Sequence[str] = (),
+        residual_factor: float | None = 1e3,
+        energy_factor: float | None = 100.0,
     ) -> None:
         if not isinstance(scene, Scene):
             raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
@@ -125,10 +147,23 @@ class Stepper:
         if not (np.isfinite(tol) and tol > 0.0):
             raise ProblemError(f"tol must be finite and > 0, got {tol}")
         self.info = solvers.get(solver)  # unknown names fail here, before any work
-        if scene.dim not in self.info.dims:
-            raise ProblemError(
-                f"solver {solver!r} handles dimensions {self.info.dims}, not a {scene.dim}D scene"
-            )
+        if isinstance(fallback, str):
+            fallback = [name for name in fallback.split(",") if name]
+        self.fallback = tuple(fallback)
+        for name in (solver, *self.fallback):
+            info = solvers.get(name)
+            if scene.dim not in info.dims:
+                raise ProblemError(
+                    f"solver {name!r} handles dimensions {info.dims}, not a {scene.dim}D scene"
+                )
+        for label, factor in (
+            ("residual_factor", residual_factor),
+            ("energy_factor", energy_factor),
+        ):
+            if factor is not None and not (np.isfinite(factor) and factor >= 1.0):
+                raise ProblemError(f"{label} must be a finite number >= 1 or None, got {factor}")
+        self.residual_factor = residual_factor
+        self.energy_factor = energy_factor
         scene.check_overlaps(overlap_tol)
         self.scene = scene
         self.dt = dt
@@ -181,24 +216,35 @@ class Stepper:
             p0 = match_impulses(*self.previous, contacts.keys)
             if p0.shape[1] != problem.contact_dim:
                 p0 = None
-        solution = solvers.solve(
-            problem,
-            solver=self.solver,
-            tol=self.tol,
-            warm_start=p0,
-            max_iter=self.max_iter,
-            time_limit=self.time_limit,
-            **self.solver_options,
-        )
         k = self.step_count + 1
-        if not solution.found:
-            raise SolverError(
-                f"step {k} (t = {scene.time + self.dt:.6g} s): solver {self.solver!r} "
-                f"returned status {solution.status.value} "
-                f"({solution.extras.get('native_status', 'no native status')}) "
-                f"after {solution.iterations} iterations on {problem.nc} contacts"
-            )
-        res = residuals(problem, solution.u, solution.p)
+        where = f"step {k} (t = {scene.time + self.dt:.6g} s, {problem.nc} contacts)"
+        energy_before = kinetic_energy(scene)
+        failures: list[str] = []
+        for name in (self.solver, *self.fallback):
+            info = solvers.get(name)
+            try:
+                solution = solvers.solve(
+                    problem,
+                    solver=name,
+                    tol=self.tol,
+                    warm_start=p0 if info.warm_start else None,
+                    max_iter=self.max_iter,
+                    time_limit=self.time_limit,
+                    **(self.solver_options if name == self.solver else {}),
+                )
+            except ProblemError:
+                raise  # the problem or the options are wrong, not the backend
+            except SolverError as exc:  # the backend raised (solvers.solve says what)
+                failures.append(f"{name}: {exc}")
+                continue
+            reason, res = self._judge(problem, solution, info.convex, energy_before)
+            if reason is None:
+                break
+            failures.append(f"{name}: {reason}")
+        else:
+            raise SolverError(f"{where}: " + "; ".join(failures))
+        assert res is not None
+        answered = name
 
         scatter_velocity(scene, problem.velocity(solution.p), problem.contact_dim == 1)
         free = scene.free
@@ -210,7 +256,7 @@ class Stepper:
             t=scene.time,
             n=scene.n_free,
             nc=problem.nc,
-            solver=self.solver,
+            solver=answered,
             status=solution.status.value,
             iterations=solution.iterations,
             detect_time=detect_time,
@@ -223,6 +269,7 @@ class Stepper:
             complementarity_max=res.complementarity_max,
             kinetic_energy=kinetic_energy(scene),
             potential_energy=potential_energy(scene),
+            failures="; ".join(failures),
         )
         self.contacts, self.problem, self.solution = contacts, problem, solution
         self.previous = (contacts.keys, solution.p)
@@ -230,6 +277,49 @@ class Stepper:
         if self.fclib_dir is not None and (self.fclib_steps is None or k in self.fclib_steps):
             self.export_step(self.fclib_dir / f"step_{k:06d}.hdf5")
         return record
+
+    def _judge(
+        self, problem: ConicProblem, solution: solvers.Solution, convex: bool, energy_before: float
+    ) -> tuple[str | None, Residuals | None]:
+        """Why a backend's answer is not accepted (``None``: it is), and its residuals."""
+        status = solution.status.value
+        if not solution.found:
+            native = solution.extras.get("native_status", "no native status")
+            return (
+                f"returned status {status} ({native}) after {solution.iterations} iterations",
+                None,
+            )
+        u, p = np.asarray(solution.u), np.asarray(solution.p)
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(p))):
+            return "returned non-finite velocities or impulses", None
+        res = residuals(problem, u, p)
+        measured = res.ccp if convex else res.coulomb
+        label = "ccp_residual" if convex else "coulomb_residual"
+        # An approximate model (faceted cones) answers another problem: its residual
+        # against the exact cone measures the model's error, not a failure.
+        approximate = bool(solution.extras.get("approximation"))
+        if (
+            self.residual_factor is not None
+            and not approximate
+            and not measured <= self.residual_factor * self.tol
+        ):
+            return (
+                f"{label} {measured:.3g} is above {self.residual_factor:g} x tol "
+                f"({self.residual_factor * self.tol:.3g}; status {status})",
+                res,
+            )
+        if self.energy_factor is not None:
+            v = problem.velocity(p)
+            after = 0.5 * float(np.sum(problem.mass * v * v))
+            free = 0.5 * float(np.sum(problem.mass * problem.U * problem.U))
+            bound = self.energy_factor * max(energy_before, free)
+            if after > bound and after > 0.0:
+                return (
+                    f"kinetic energy blew up: {after:.3g} after the step against "
+                    f"{max(energy_before, free):.3g} before (limit x{self.energy_factor:g})",
+                    res,
+                )
+        return None, res
 
     def export_step(self, path: str | os.PathLike[str]) -> Path:
         """Write the last step's problem, with its answer, as an FCLib global problem.

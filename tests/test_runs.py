@@ -72,7 +72,7 @@ def test_one_example_per_builder_and_each_runs(tmp_path):
         ('builder = "column_2d"\n[run]\nframe_every = 0\n', "run.frame_every: Input should be"),
         ('builder = "column_2d"\n[params]\nn_grains = "many"\n', "params.n_grains: Input should"),
         ('builder = "column_2d"\n[params]\nradius = 1\n', "params.radius: unknown argument"),
-        ('builder = "column_2d"\n[params]\nn_grains = -5\n', "n_grains must be >= 1"),
+        ('builder = "column_2d"\n[params]\nn_grains = -5\n', "n_grains must be an integer >= 1"),
         ('builder = "stack"\n[params]\nn_grains = 2\nradius = -0.01\n', "radius"),
         ('builder = "disc_tower"\n', "builder: unknown builder 'disc_tower'"),
         ("[params]\nn = 3\n", "builder: Field required"),
@@ -195,7 +195,7 @@ def test_not_a_run_file_is_named(tmp_path):
 
 def _complete_frames(path: Path) -> int:
     try:
-        with RunFile(path) as rf:
+        with RunFile(path, live=True) as rf:
             return rf.n_frames
     except RunFileError:
         return 0

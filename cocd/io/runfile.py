@@ -30,8 +30,10 @@ that replaces it.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,7 +55,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _STAT_FIELDS = list(StepRecord.__dataclass_fields__)
-_STAT_STRINGS = {"solver", "status"}
+_STAT_STRINGS = {"solver", "status", "failures"}
 _STAT_INTS = {"step", "n", "nc", "iterations"}
 _CONTACT_FIELDS = ("i", "j", "keys", "gap", "normal", "impulse")
 
@@ -288,17 +290,42 @@ def _copy_rows(ds: h5py.Dataset, group: h5py.Group, name: str, rows: int) -> Non
 
 
 # -- reading ------------------------------------------------------------------------------
-class RunFile:
-    """A run file opened for reading (also while it is being written, or after a crash)."""
+_DAMAGE = (KeyError, ValueError, TypeError, IndexError, OSError, AttributeError, RuntimeError)
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+
+@contextlib.contextmanager
+def _damaged(path: Path) -> Iterator[None]:
+    """h5py and numpy errors met while reading become a :class:`RunFileError`."""
+    try:
+        yield
+    except RunFileError:
+        raise
+    except _DAMAGE as exc:
+        raise RunFileError(f"{path}: damaged or incomplete run file ({exc})") from None
+
+
+class RunFile:
+    """A run file opened for reading (after a crash too; ``live=True`` while a run
+    writes it)."""
+
+    def __init__(self, path: str | os.PathLike[str], *, live: bool = False) -> None:
         self.path = Path(path)
         if not self.path.exists():
             raise RunFileError(f"run file {self.path} does not exist")
         try:
-            self.f = h5py.File(self.path, "r", swmr=True)
+            # live: HDF5's SWMR reading, for a file a run is writing. It retries reads
+            # that fail their checksums, which makes it slow on a damaged file, so it
+            # is used only when asked for or when the file says a writer has it open
+            # (a run still going, or one that was killed).
+            try:
+                self.f = h5py.File(self.path, "r", swmr=live)
+            except OSError as exc:
+                if live or "already open for write" not in str(exc):
+                    raise
+                self.f = h5py.File(self.path, "r", swmr=True)
         except OSError as exc:
-            raise RunFileError(f"{self.path}: not a readable HDF5 file ({exc})") from None
+            hint = "" if live else "; if a run is writing it, read it with live=True"
+            raise RunFileError(f"{self.path}: not a readable HDF5 file ({exc}){hint}") from None
         try:
             if self.f.attrs.get("format") != FORMAT:
                 raise RunFileError(f"{self.path}: not a cocd run file")
@@ -324,7 +351,7 @@ class RunFile:
         except RunFileError:
             self.f.close()
             raise
-        except (KeyError, ValueError, TypeError, OSError) as exc:
+        except _DAMAGE as exc:
             self.f.close()
             raise RunFileError(f"{self.path}: damaged or incomplete run file ({exc})") from None
 
@@ -344,6 +371,10 @@ class RunFile:
         if not -n <= k < n:
             raise RunFileError(f"{self.path}: frame {k} out of range ({n} frames)")
         k %= n
+        with _damaged(self.path):
+            return self._frame(k)
+
+    def _frame(self, k: int) -> Frame:
         f = self.f
         lo, hi = (int(x) for x in f["contacts/ptr"][k : k + 2])
         c = {name: f[f"contacts/{name}"][lo:hi] for name in _CONTACT_FIELDS}
@@ -365,6 +396,10 @@ class RunFile:
     def scene(self, k: int = -1) -> Scene:
         """The scene at frame ``k``: static data from ``/scene``, state from the frame."""
         fr = self.frame(k)
+        with _damaged(self.path):
+            return self._scene(fr)
+
+    def _scene(self, fr: Frame) -> Scene:
         s = self.f["scene"]
         walls = [
             Wall(p, nrm, None if np.isnan(m) else float(m))
@@ -390,6 +425,10 @@ class RunFile:
 
     def stats(self) -> Any:
         """The per-step statistics as a pandas table (one row per step)."""
+        with _damaged(self.path):
+            return self._stats()
+
+    def _stats(self) -> Any:
         import pandas as pd
 
         st = self.f["stats"]
