@@ -10,7 +10,9 @@ from numpy.typing import NDArray
 
 from cocd.errors import SceneError
 from cocd.packing import rain_deposition
+from cocd.resources import BYTES_PER_GRAIN, check_fits
 from cocd.scene import Scene, Wall
+from cocd.validation import checked
 
 __all__ = [
     "HARD_CASES",
@@ -36,6 +38,7 @@ G = 9.81
 RAIN_FRACTION = {2: 0.84, 3: 0.63}
 
 
+@checked
 def column_2d(
     n_grains: int = 300,
     *,
@@ -68,8 +71,7 @@ def column_2d(
     seed : int
         Seed of the radii.
     """
-    if int(n_grains) < 1:
-        raise SceneError(f"n_grains must be >= 1, got {n_grains}")
+    n_grains = _count("n_grains", n_grains)
     if not (width > 0 and aspect > 0):
         raise SceneError(f"width and aspect must be > 0, got {width} and {aspect}")
     if not 0 <= polydispersity < 1:
@@ -98,6 +100,7 @@ def column_2d(
     )
 
 
+@checked
 def stack(
     n_grains: int,
     *,
@@ -111,8 +114,7 @@ def stack(
 
     ``gap`` separates consecutive grains (and the lowest from the wall).
     """
-    if int(n_grains) < 1:
-        raise SceneError(f"n_grains must be >= 1, got {n_grains}")
+    n_grains = _count("n_grains", n_grains)
     if dim not in (2, 3):
         raise SceneError(f"dim must be 2 or 3, got {dim}")
     heights = radius + gap + np.arange(int(n_grains)) * (2.0 * radius + gap)
@@ -129,6 +131,7 @@ def stack(
     )
 
 
+@checked
 def box_3d(
     n_grains: int = 2000,
     *,
@@ -153,8 +156,7 @@ def box_3d(
         Inner side of the box; default fits a square base of about
         ``n_grains ** (1/3)`` sites per side.
     """
-    if int(n_grains) < 1:
-        raise SceneError(f"n_grains must be >= 1, got {n_grains}")
+    n_grains = _count("n_grains", n_grains)
     if not diameter > 0:
         raise SceneError(f"diameter must be > 0, got {diameter}")
     if not 0 <= polydispersity < 1:
@@ -184,6 +186,7 @@ def box_3d(
 
 
 # -- column collapse, static box ---------------------------------------------
+@checked
 def column_collapse(
     dim: int = 2,
     *,
@@ -391,6 +394,7 @@ def column_collapse(
     return scene
 
 
+@checked
 def static_box(
     dim: int = 3,
     *,
@@ -464,6 +468,7 @@ def grain_groups(scene: Scene) -> dict[str, slice]:
 
 
 # -- hard cases --------------------------------------------------------------
+@checked
 def heavy_on_light(mass_ratio: float = 1e3, *, dim: int = 2, radius: float = 0.005) -> Scene:
     """A heavy grain resting on light grains of the same size (mass ratio by density).
 
@@ -491,6 +496,7 @@ def heavy_on_light(mass_ratio: float = 1e3, *, dim: int = 2, radius: float = 0.0
     return Scene(positions, r, density=density, walls=[_floor(dim)])
 
 
+@checked
 def tall_stack(n: int = 50, *, dim: int = 2, radius: float = 0.005, mu: float = 0.3) -> Scene:
     """A vertical stack of ``n`` touching grains on the floor.
 
@@ -502,6 +508,7 @@ def tall_stack(n: int = 50, *, dim: int = 2, radius: float = 0.005, mu: float = 
     return stack(_count("n", n), radius=_positive("radius", radius), dim=_dim(dim), mu=mu)
 
 
+@checked
 def jammed_box(
     n_grains: int = 200, *, dim: int = 2, radius: float = 0.005, mu: float = 0.3
 ) -> Scene:
@@ -534,6 +541,7 @@ def jammed_box(
     return Scene(positions, r, walls=_box_walls(dim, box), mu=mu)
 
 
+@checked
 def wedged_grain(
     half_angle_deg: float = 10.0, *, dim: int = 2, radius: float = 0.005, mu: float = 0.3
 ) -> Scene:
@@ -559,6 +567,7 @@ def wedged_grain(
     return Scene(centre, r, walls=walls, mu=mu)
 
 
+@checked
 def fast_impact(
     speed_ratio: float = 1.0,
     *,
@@ -591,6 +600,7 @@ def fast_impact(
     return Scene(positions, r, velocities=velocities, walls=[_floor(dim)], mu=mu)
 
 
+@checked
 def size_ratio(
     ratio: float = 10.0,
     *,
@@ -644,6 +654,7 @@ def size_ratio(
     return Scene(positions, radii, walls=[_floor(dim)], mu=mu)
 
 
+@checked
 def zero_gap(n_side: int = 6, *, dim: int = 2, mu: float = 0.3) -> Scene:
     """A square (cubic) block of equal grains touching each other and the floor, gaps exactly 0.
 
@@ -704,7 +715,15 @@ def _positive(name: str, value: float) -> float:
 def _count(name: str, value: int | None) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise SceneError(f"{name} must be an integer >= 1, got {value!r}")
+    check_fits(int(value) * BYTES_PER_GRAIN, f"a scene of {int(value)} grains ({name})")
     return int(value)
+
+
+def _derived_count(count: float, diameter: float) -> int:
+    """The grain count a diameter implies, checked like a given one."""
+    if not np.isfinite(count) or count > 1e15:
+        raise SceneError(f"diameter {diameter:g} m gives {count:.3g} grains: far too many")
+    return _count(f"grains for diameter {diameter:g} m", max(1, round(count)))
 
 
 def _polydispersity(value: float) -> float:
@@ -747,7 +766,8 @@ def _lattice_size(
         spacing = (volume / (n * cell)) ** (1.0 / dim)
         return n, float(spacing / ratio)
     d = _positive("diameter", diameter)  # type: ignore[arg-type]
-    n = max(1, round(volume / (cell * (ratio * d) ** dim)))
+    with np.errstate(divide="ignore", over="ignore"):
+        n = _derived_count(volume / (cell * (ratio * d) ** dim), d)
     return n, d
 
 
@@ -761,7 +781,8 @@ def _rain_size(
         n = _count("n_grains", n_grains)
         return n, float((RAIN_FRACTION[dim] * volume / (n * unit)) ** (1.0 / dim))
     d = _positive("diameter", diameter)  # type: ignore[arg-type]
-    return max(1, round(RAIN_FRACTION[dim] * volume / (unit * d**dim))), d
+    with np.errstate(divide="ignore", over="ignore"):
+        return _derived_count(RAIN_FRACTION[dim] * volume / (unit * d**dim), d), d
 
 
 def _lattice(

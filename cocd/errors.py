@@ -12,6 +12,7 @@ __all__ = [
     "OverlapError",
     "ProblemError",
     "ProblemFileError",
+    "ResourceError",
     "SceneError",
     "SolverError",
     "SolverNotFound",
@@ -37,6 +38,11 @@ class ProblemError(CocdError, ValueError):
 class ProblemFileError(ProblemError):
     """A problem file (FCLib HDF5, Siconos text) cannot be read: the message names
     the file and what in it is wrong."""
+
+
+class ResourceError(CocdError, MemoryError):
+    """What was asked for would not fit in the memory available: the message
+    gives the estimate and the memory there is."""
 
 
 class SolverNotFound(CocdError, LookupError):

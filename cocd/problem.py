@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from cocd.cones import project_coulomb
 from cocd.contacts import ContactSet, contact_jacobian, dof_layout
 from cocd.errors import ProblemError
+from cocd.resources import BYTES_PER_CONTACT, BYTES_PER_GRAIN, check_fits
 from cocd.scene import Scene
 
 __all__ = [
@@ -479,6 +480,10 @@ def assemble(scene: Scene, contacts: ContactSet, dt: float) -> ConicProblem:
     if not (np.isfinite(dt) and dt > 0.0):
         raise ProblemError(f"time step dt must be finite and > 0, got {dt}")
     frictionless = scene.frictionless
+    check_fits(
+        contacts.nc * BYTES_PER_CONTACT + scene.n_free * BYTES_PER_GRAIN,
+        f"the step problem of {scene.n_free} grains and {contacts.nc} contacts",
+    )
     first, per_grain = dof_layout(scene, frictionless)
     ndof = scene.n_free * per_grain
     H = contact_jacobian(contacts, first, per_grain, ndof)

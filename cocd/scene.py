@@ -47,8 +47,8 @@ class Wall:
     mu: float | None = None
 
     def __init__(self, point: ArrayLike, normal: ArrayLike, mu: float | None = None) -> None:
-        p = np.array(point, dtype=np.float64).reshape(-1)
-        n = np.array(normal, dtype=np.float64).reshape(-1)
+        p = _as_float_array(point, "wall point").reshape(-1)
+        n = _as_float_array(normal, "wall normal").reshape(-1)
         if p.shape != n.shape or p.size not in (2, 3):
             raise SceneError(
                 f"wall point {p.tolist()} and normal {n.tolist()} must both have 2 or 3 coordinates"
@@ -58,8 +58,8 @@ class Wall:
         length = float(np.linalg.norm(n))
         if length == 0.0:
             raise SceneError("wall normal is the zero vector")
-        if mu is not None and not (np.isfinite(mu) and mu >= 0.0):
-            raise SceneError(f"wall friction coefficient must be finite and >= 0, got {mu}")
+        if mu is not None:
+            mu = _friction(mu, "wall friction coefficient")
         object.__setattr__(self, "point", p)
         object.__setattr__(self, "normal", n / length)
         object.__setattr__(self, "mu", None if mu is None else float(mu))
@@ -284,7 +284,7 @@ class Scene:
 def _as_float_array(value: ArrayLike, name: str) -> FloatArray:
     try:
         return np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise SceneError(f"{name} must be numeric: {exc}") from None
 
 

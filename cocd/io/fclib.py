@@ -69,7 +69,7 @@ def read_fclib(path: str | os.PathLike[str]) -> LocalProblem | GlobalProblem:
         raise
     except ProblemError as exc:
         raise ProblemFileError(f"{path}: {exc}") from None
-    except (OSError, KeyError, ValueError, TypeError, IndexError) as exc:
+    except (OSError, KeyError, ValueError, TypeError, IndexError, RuntimeError) as exc:
         reason = f"{type(exc).__name__}: {exc}"
         raise ProblemFileError(f"{path}: unreadable FCLib data ({reason})") from None
 
