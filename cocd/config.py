@@ -35,7 +35,7 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pydantic
 import tomllib
@@ -45,6 +45,9 @@ from cocd import builders
 from cocd.errors import CocdError
 from cocd.scene import Scene
 from cocd.validation import argument_checker
+
+if TYPE_CHECKING:
+    from cocd.stepper import Stepper
 
 __all__ = [
     "BUILDERS",
@@ -75,6 +78,13 @@ BUILDERS: dict[str, Callable[..., Scene]] = {
         "zero_gap",
     )
 }
+
+
+def known_builder(name: str) -> str:
+    """``name`` if it is a builder of :data:`BUILDERS` (pydantic validators call it)."""
+    if name not in BUILDERS:
+        raise ValueError(f"unknown builder {name!r}; one of {', '.join(sorted(BUILDERS))}")
+    return name
 
 
 class ConfigError(CocdError, ValueError):
@@ -116,12 +126,25 @@ class RunConfig(BaseModel):
     params: dict[str, Any] = Field(default_factory=dict)
     run: RunSection = Field(default_factory=lambda: RunSection.model_validate({}))
 
-    @field_validator("builder")
-    @classmethod
-    def _known_builder(cls, value: str) -> str:
-        if value not in BUILDERS:
-            raise ValueError(f"unknown builder {value!r}; one of {', '.join(sorted(BUILDERS))}")
-        return value
+    _known_builder = field_validator("builder")(classmethod(lambda cls, v: known_builder(v)))
+
+    def stepper(self, scene: Scene) -> Stepper:
+        """A :class:`~cocd.stepper.Stepper` of ``scene`` with the ``[run]`` parameters."""
+        from cocd.stepper import Stepper
+
+        rc = self.run
+        return Stepper(
+            scene,
+            rc.dt,
+            solver=rc.solver,
+            tol=rc.tol,
+            warm_start=rc.warm_start,
+            max_iter=rc.max_iter,
+            solver_options=rc.solver_options,
+            fallback=rc.fallback,
+            residual_factor=rc.residual_factor,
+            energy_factor=rc.energy_factor,
+        )
 
     def n_steps(self, start_time: float = 0.0) -> int:
         """Steps from ``start_time`` to the end (``until``, else ``steps``, else 100)."""

@@ -22,7 +22,7 @@ import numpy as np
 from cocd.config import RunConfig, build_scene
 from cocd.io.runfile import RunFile, RunFileError, RunWriter
 from cocd.scene import Scene
-from cocd.stepper import Stepper, StepRecord
+from cocd.stepper import StepRecord
 
 __all__ = ["RUN_FILE", "Progress", "RunSummary", "run"]
 
@@ -92,18 +92,7 @@ def run(
         writer = RunWriter.create(path, scene, resolved, scene_file)
         records, previous, frames, start_step = [], None, 1, 0
     try:
-        stepper = Stepper(
-            scene,
-            rc.dt,
-            solver=rc.solver,
-            tol=rc.tol,
-            warm_start=rc.warm_start,
-            max_iter=rc.max_iter,
-            solver_options=rc.solver_options,
-            fallback=rc.fallback,
-            residual_factor=rc.residual_factor,
-            energy_factor=rc.energy_factor,
-        )
+        stepper = config.stepper(scene)
         stepper.restore(records, previous)
         total = config.n_steps()  # steps of the whole run, from t = 0
         begin = time.perf_counter()

@@ -55,7 +55,7 @@ import pydantic
 import tomllib
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from cocd.config import BUILDERS, ConfigError, parse_config
+from cocd.config import ConfigError, known_builder, parse_config
 from cocd.errors import CocdError
 
 __all__ = [
@@ -79,12 +79,7 @@ class SceneEntry(BaseModel):
     builder: str
     params: dict[str, Any] = Field(default_factory=dict)
 
-    @field_validator("builder")
-    @classmethod
-    def _known(cls, value: str) -> str:
-        if value not in BUILDERS:
-            raise ValueError(f"unknown builder {value!r}; one of {', '.join(sorted(BUILDERS))}")
-        return value
+    _known = field_validator("builder")(classmethod(lambda cls, v: known_builder(v)))
 
 
 class SweepSpec(BaseModel):
@@ -201,26 +196,13 @@ def run_cell(cell: Cell, folder: str) -> str:
     renamed: the cell's file is complete or absent.
     """
     from cocd.config import build_scene
-    from cocd.stepper import Stepper
 
     start = time.perf_counter()
     row: dict[str, Any] = {"cell": cell.id, **{_column(k): v for k, v in cell.coords.items()}}
     try:
         config = parse_config(cell.config, f"cell {cell.id}")
         scene = build_scene(config)
-        rc = config.run
-        stepper = Stepper(
-            scene,
-            rc.dt,
-            solver=rc.solver,
-            tol=rc.tol,
-            warm_start=rc.warm_start,
-            max_iter=rc.max_iter,
-            solver_options=rc.solver_options,
-            fallback=rc.fallback,
-            residual_factor=rc.residual_factor,
-            energy_factor=rc.energy_factor,
-        )
+        stepper = config.stepper(scene)
         stepper.run(config.n_steps())
         stats = stepper.stats()
         row.update(

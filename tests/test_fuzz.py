@@ -199,6 +199,31 @@ def _datasets(path: Path) -> list[str]:
     return names
 
 
+def _mutate(path: Path, pick: int, mutation: str, value: object, cut: float) -> None:
+    """Damage an HDF5 file: cut or flip a byte, or delete, replace or annotate an object."""
+    names = _datasets(path)
+    name = names[pick % len(names)]
+    if mutation in ("truncate", "flip"):
+        data = bytearray(path.read_bytes())
+        if mutation == "truncate":
+            data = data[: int(cut * len(data))]
+        else:
+            data[int(cut * (len(data) - 1))] ^= 0xFF
+        path.write_bytes(bytes(data))
+        return
+    with h5py.File(path, "a") as f:
+        if mutation == "attr":
+            f[name].attrs["junk"] = 1
+            f.attrs[("version", "config", "dim", "format")[pick % 4]] = str(value)[:10]
+            return
+        del f[name]
+        if mutation == "replace" and not isinstance(value, list):
+            try:
+                f[name] = value
+            except (TypeError, ValueError):
+                pass
+
+
 @SETTINGS
 @given(
     which=st.sampled_from(["local", "global"]),
@@ -211,28 +236,7 @@ def test_mutated_fclib_files_give_problems_or_problem_file_errors(which, pick, m
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "p.hdf5"
         write_problem(path, _local_problem() if which == "local" else _global_problem())
-        names = _datasets(path)
-        name = names[pick % len(names)]
-        if mutation in ("truncate", "flip"):
-            data = bytearray(path.read_bytes())
-            if mutation == "truncate":
-                data = data[: int(cut * len(data))]
-            else:
-                k = int(cut * (len(data) - 1))
-                data[k] ^= 0xFF
-            path.write_bytes(bytes(data))
-        else:
-            with h5py.File(path, "a") as f:
-                if mutation == "attr":
-                    f[name].attrs["junk"] = 1
-                    f.attrs["version"] = str(value)[:10]
-                else:
-                    del f[name]
-                    if mutation == "replace" and not isinstance(value, list):
-                        try:
-                            f[name] = value
-                        except (TypeError, ValueError):
-                            pass
+        _mutate(path, pick, mutation, value, cut)
         _only_cocd_errors(lambda: read_problem(path))
 
 
@@ -312,26 +316,7 @@ def test_mutated_run_files_give_run_file_errors(pick, mutation, value, cut):
 
     with tempfile.TemporaryDirectory() as folder:
         path = _run_file(Path(folder))
-        names = _datasets(path)
-        name = names[pick % len(names)]
-        if mutation in ("truncate", "flip"):
-            data = bytearray(path.read_bytes())
-            if mutation == "truncate":
-                data = data[: int(cut * len(data))]
-            else:
-                data[int(cut * (len(data) - 1))] ^= 0xFF
-            path.write_bytes(bytes(data))
-        else:
-            with h5py.File(path, "a") as f:
-                if mutation == "attr":
-                    f.attrs[("config", "dim", "version", "format")[pick % 4]] = str(value)[:10]
-                else:
-                    del f[name]
-                    if mutation == "replace" and not isinstance(value, list):
-                        try:
-                            f[name] = value
-                        except (TypeError, ValueError):
-                            pass
+        _mutate(path, pick, mutation, value, cut)
 
         def read() -> None:
             with RunFile(path) as rf:
