@@ -50,6 +50,7 @@ __all__ = [
     "relative_volume_variation",
     "runout",
     "static_flowing_interface",
+    "surface_front",
     "velocity_profile",
 ]
 
@@ -157,6 +158,87 @@ def front_position(
     _flow_axis(axis, x.shape[1])
     main = _main_mass(x, r, sel, _gap(gap, r, sel))
     return float(np.max(x[main, axis] + r[main]))
+
+
+def surface_front(
+    scene_or_positions: Scene | ArrayLike,
+    radii: ArrayLike | float | None = None,
+    *,
+    x_bins: ArrayLike,
+    surface: ArrayLike | float = 0.0,
+    threshold: float | None = None,
+    max_gap_bins: int = 2,
+    axis: int = 0,
+    mask: ArrayLike | None = None,
+) -> float:
+    """Front of a flow over a bed: where its free surface stands above the bed's surface.
+
+    The free surface ``h`` of the selected grains (every grain, not only the
+    main mass: :func:`mass_profile` with ``connected=False``) is compared per
+    bin with the bed's surface ``surface`` (e.g. the top of an erodible layer
+    before the flow, or of the glued grains). A bin *carries the flow* when
+    ``h - surface > threshold``. Starting at the bin where the flow is
+    thickest, the front is the upper edge of the last bin reached going
+    downstream while crossing at most ``max_gap_bins`` bins in a row that do
+    not carry it. On an erodible bed this is the front the eye sees (column
+    and entrained layer grains alike), and grains rolling ahead alone (a
+    thin, isolated bump) do not move it, which :func:`front_position` cannot
+    ensure once the layer joins every grain into one mass.
+
+    Parameters
+    ----------
+    scene_or_positions, radii, mask : see :func:`front_position`
+        Give the grains that can flow (a Scene's free grains by default).
+    x_bins : (nx + 1,) array
+        Bin edges along the flow direction (m); one mean diameter is a good width.
+        The front is known to one bin.
+    surface : float or (nx,) array
+        Height of the bed's surface per bin (m, absolute z), NaN for none (the
+        bin then never carries the flow).
+    threshold : float, optional
+        Thickness above the surface that counts as flow (m), >= 0; default half
+        the mean diameter of the selected grains.
+    max_gap_bins : int
+        Longest run of bins without flow that is crossed, >= 0.
+    axis : int
+        Flow direction, a horizontal coordinate (0, or 1 in 3D).
+
+    Returns
+    -------
+    float
+        The front (m), in the scene's frame; NaN when no bin carries the flow.
+    """
+    x, r, sel = _grains(scene_or_positions, radii, mask)
+    _flow_axis(axis, x.shape[1])
+    edges = _edges(x_bins, "x_bins")
+    nx = edges.size - 1
+    base = _float_array(surface, "surface")
+    if base.ndim == 0:
+        base = np.full(nx, float(base))
+    if base.shape != (nx,):
+        raise SceneError(f"surface must be a number or have shape ({nx},), got {base.shape}")
+    if threshold is None:
+        threshold = float(np.mean(r[sel]))
+    threshold = _finite_scalar(threshold, "threshold")
+    if threshold < 0.0:
+        raise SceneError(f"threshold must be >= 0, got {threshold:g}")
+    if int(max_gap_bins) != max_gap_bins or max_gap_bins < 0:
+        raise SceneError(f"max_gap_bins must be an integer >= 0, got {max_gap_bins!r}")
+    height = _profile(x, r, sel, edges, None, axis).height
+    excess = np.where(np.isfinite(height) & np.isfinite(base), height - base, -np.inf)
+    flowing = excess > threshold
+    if not flowing.any():
+        return float("nan")
+    k = int(np.argmax(excess))
+    last, gap = k, 0
+    for j in range(k + 1, nx):
+        if flowing[j]:
+            last, gap = j, 0
+        else:
+            gap += 1
+            if gap > max_gap_bins:
+                break
+    return float(edges[last + 1])
 
 
 @overload

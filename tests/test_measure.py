@@ -19,6 +19,7 @@ from cocd.measure import (
     relative_volume_variation,
     runout,
     static_flowing_interface,
+    surface_front,
     velocity_profile,
 )
 
@@ -75,6 +76,37 @@ def test_front_3d_along_either_horizontal_axis():
     x = block(5, 3, ny=4)
     assert front_position(x, R) == pytest.approx(5 * D, abs=1e-12)
     assert front_position(x, R, axis=1) == pytest.approx(4 * D, abs=1e-12)
+
+
+def test_surface_front_over_an_erodible_layer():
+    # A layer two grains thick over 40 diameters, a heap 10 diameters long and
+    # 4 grains thick on its left: the front is the heap's right face.
+    layer = block(40, 2)
+    heap = block(10, 4, lift=2 * D)
+    x = np.vstack([layer, heap])
+    bins = np.arange(0.0, 40 * D + 1e-12, D)
+    surface = np.full(40, 2 * D)
+    front = surface_front(x, R, x_bins=bins, surface=surface)
+    assert front == pytest.approx(10 * D, abs=1e-12)
+    # The layer alone carries no flow; measured against the floor it is all flow.
+    assert np.isnan(surface_front(layer, R, x_bins=bins, surface=surface))
+    assert surface_front(layer, R, x_bins=bins) == pytest.approx(40 * D, abs=1e-12)
+    # A lone grain rolling on the layer 2 bins ahead is crossed, 5 bins ahead it is not.
+    near = np.vstack([x, [[12.5 * D, 2 * D + R]]])
+    assert surface_front(near, R, x_bins=bins, surface=surface) == pytest.approx(13 * D)
+    far = np.vstack([x, [[15.5 * D, 2 * D + R]]])
+    assert surface_front(far, R, x_bins=bins, surface=surface) == pytest.approx(10 * D)
+    assert surface_front(far, R, x_bins=bins, surface=surface, max_gap_bins=5) == pytest.approx(
+        16 * D
+    )
+    # A thicker threshold ignores the one-grain bump, not the heap.
+    assert surface_front(near, R, x_bins=bins, surface=surface, threshold=1.5 * D) == (
+        pytest.approx(10 * D)
+    )
+    with pytest.raises(SceneError, match=r"surface must be a number or have shape \(40,\)"):
+        surface_front(x, R, x_bins=bins, surface=np.zeros(3))
+    with pytest.raises(SceneError, match="threshold must be >= 0"):
+        surface_front(x, R, x_bins=bins, threshold=-1.0)
 
 
 def test_runout_and_relative_runout():
