@@ -3,7 +3,8 @@
 ``cocd run`` (also ``python -m cocd``) runs a small 2D column collapse and
 prints per-step statistics; ``cocd solvers`` lists the backends; ``cocd problem``
 reads and solves external problem files (FCLib HDF5, Siconos text);
-``cocd bench`` runs the benchmark harness (:mod:`cocd.bench`).
+``cocd bench`` runs the benchmark harness (:mod:`cocd.bench`); ``cocd validate``
+reproduces the seed paper's physics cases (:mod:`cocd.bench.validate`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from rich.table import Table
 
 import solvers
 from cocd.bench.cli import bench_app
+from cocd.bench.validate_cli import validate_app
 from cocd.errors import CocdError
 
 app = typer.Typer(
@@ -28,6 +30,7 @@ app = typer.Typer(
     help="Granular media with hard Coulomb contact, one convex conic problem per step.",
 )
 app.add_typer(bench_app, name="bench")
+app.add_typer(validate_app, name="validate")
 problem_app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,

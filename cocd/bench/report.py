@@ -46,6 +46,10 @@ ORDER = [
     "backends",
     "iterative",
     "collapse_2d_slope",
+    "timestep",
+    "nscd",
+    "erodible",
+    "stability_threshold",
 ]
 
 PACKAGES = [
@@ -173,8 +177,8 @@ def write_meta(
     return path
 
 
-def write_readme(out: Path) -> Path:
-    """Rebuild ``<out>/README.md`` from every ``<out>/*.meta.json``."""
+def write_readme(out: Path, *, heading: str = "Results") -> Path:
+    """Rebuild ``<out>/README.md`` from every ``<out>/*.meta.json``, under ``# heading``."""
     if not out.is_dir():
         raise CocdError(f"results directory {out} does not exist")
     metas = []
@@ -186,7 +190,7 @@ def write_readme(out: Path) -> Path:
     rank = {name: k for k, name in enumerate(ORDER)}
     metas.sort(key=lambda m: (rank.get(m["name"], len(ORDER)), m["name"]))
     lines = [
-        "# Results",
+        f"# {heading}",
         "",
         "Every file here was written by a command of the repository; this README is",
         "rebuilt from their `*.meta.json` by `cocd bench readme` (commentary from",

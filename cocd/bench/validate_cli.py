@@ -1,0 +1,200 @@
+"""``cocd validate``: the seed paper's physics cases (:mod:`cocd.bench.validate`).
+
+Each command runs its simulations (resumable run files under
+``OUT/runs/<case>/``), writes its table and figures under ``--out`` (default
+``results/validation``) and rebuilds ``OUT/README.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cocd.bench.cli import _fail, _floats
+from cocd.errors import CocdError
+
+validate_app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Reproduce the seed paper's physics: time step, NSCD, erodible beds, stability.",
+)
+
+Out = Annotated[Path, typer.Option("--out", help="Output directory.")]
+N = Annotated[int, typer.Option("--n", help="Discs in the column.")]
+Solver = Annotated[str, typer.Option("--solver", help="Convex backend of the COCD runs.")]
+Tol = Annotated[float, typer.Option("--tol", help="Tolerance of the convex backend.")]
+Fallback = Annotated[
+    str, typer.Option("--fallback", help="Backends tried when a step fails (comma-separated).")
+]
+Fresh = Annotated[
+    bool, typer.Option("--fresh", help="Start the runs over instead of resuming them.")
+]
+Mu = Annotated[float, typer.Option("--mu", help="Friction coefficient (grains and walls).")]
+DEFAULT_OUT = Path("results/validation")
+
+
+def _names(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _numbers(text: str, what: str) -> list[float]:
+    """Comma-separated numbers >= 0 (a slope or a layer thickness may be 0)."""
+    try:
+        values = [float(v) for v in _names(text)]
+    except ValueError:
+        raise CocdError(f"{what} must be comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise CocdError(f"{what} is empty")
+    return values
+
+
+def _go(job: Callable[[], object]) -> None:
+    try:
+        job()
+    except CocdError as exc:
+        _fail(exc)
+
+
+@validate_app.command()
+def timestep(
+    n: N = 400,
+    dts: Annotated[str, typer.Option("--dts", help="Time steps (s).")] = "1e-3,1e-4,5e-5",
+    times: Annotated[str, typer.Option("--times", help="Profile times (s).")] = "0.02,0.06,0.3",
+    mu: Mu = 0.3,
+    solver: Solver = "ipm",
+    tol: Tol = 1e-8,
+    fallback: Fallback = "clarabel",
+    fresh: Fresh = False,
+    out: Out = DEFAULT_OUT,
+) -> None:
+    """Fig. 2: profiles of a 2D collapse at several time steps, error against the smallest."""
+    from cocd.bench import validate
+
+    _go(
+        lambda: validate.timestep(
+            n=n,
+            dts=_floats(dts, "--dts"),
+            times=_floats(times, "--times"),
+            mu=mu,
+            solver=solver,
+            tol=tol,
+            fallback=_names(fallback),
+            out=out,
+            fresh=fresh,
+        )
+    )
+
+
+@validate_app.command()
+def nscd(
+    n: N = 400,
+    dt: Annotated[float, typer.Option("--dt", help="Time step (s).")] = 1e-3,
+    times: Annotated[
+        str, typer.Option("--times", help="Profile times in units of sqrt(H0/g).")
+    ] = "1,2,4,8",
+    mu: Mu = 0.3,
+    solver: Solver = "ipm",
+    tol: Tol = 1e-8,
+    nscd_tol: Annotated[float, typer.Option("--nscd-tol", help="Tolerance of nscd.")] = 1e-5,
+    nscd_max_iter: Annotated[
+        int, typer.Option("--nscd-max-iter", help="Sweeps allowed to nscd per step.")
+    ] = 20000,
+    fallback: Fallback = "clarabel",
+    fresh: Fresh = False,
+    out: Out = DEFAULT_OUT,
+) -> None:
+    """Fig. 4: the same 2D collapse with a convex backend (COCD) and with nscd."""
+    from cocd.bench import validate
+
+    _go(
+        lambda: validate.nscd(
+            n=n,
+            dt=dt,
+            times_T=_floats(times, "--times"),
+            mu=mu,
+            convex=solver,
+            tol=tol,
+            nscd_tol=nscd_tol,
+            nscd_max_iter=nscd_max_iter,
+            fallback=_names(fallback),
+            out=out,
+            fresh=fresh,
+        )
+    )
+
+
+@validate_app.command()
+def erodible(
+    n: N = 400,
+    slopes: Annotated[str, typer.Option("--slopes", help="Bed slopes (degrees).")] = "22",
+    layers: Annotated[
+        str, typer.Option("--layers", help="Layer thicknesses in mean diameters (0: none).")
+    ] = "0,3,5",
+    until: Annotated[float, typer.Option("--until", help="Simulated time (s).")] = 1.0,
+    dt: Annotated[float, typer.Option("--dt", help="Time step (s).")] = 1e-3,
+    mu: Mu = 0.9,
+    bed_length: Annotated[float, typer.Option("--bed-length", help="Bed length (m).")] = 1.0,
+    solver: Solver = "ipm",
+    tol: Tol = 1e-6,
+    fallback: Fallback = "clarabel",
+    fresh: Fresh = False,
+    out: Out = DEFAULT_OUT,
+) -> None:
+    """Fig. 9: 2D collapses on a slope over erodible layers; front against time."""
+    from cocd.bench import validate
+
+    _go(
+        lambda: validate.erodible(
+            n=n,
+            slopes=_numbers(slopes, "--slopes"),
+            layers_d=_numbers(layers, "--layers"),
+            until=until,
+            dt=dt,
+            mu=mu,
+            bed_length=bed_length,
+            solver=solver,
+            tol=tol,
+            fallback=_names(fallback),
+            out=out,
+            fresh=fresh,
+        )
+    )
+
+
+@validate_app.command()
+def stability(
+    solvers: Annotated[
+        str, typer.Option("--solvers", help="Backends (comma-separated).")
+    ] = "ipm,clarabel,scs,apgd,pgs,nscd",
+    eps_list: Annotated[
+        str, typer.Option("--eps-list", help="Tolerances.")
+    ] = "1e-1,1e-2,1e-3,1e-4,1e-6",
+    n: Annotated[int, typer.Option("--n", help="Grains in the box.")] = 300,
+    dim: Annotated[int, typer.Option("--dim", help="2 or 3.")] = 3,
+    t_end: Annotated[float, typer.Option("--t-end", help="Duration in sqrt(H/g).")] = 5.0,
+    dt: Annotated[float, typer.Option("--dt", help="Time step (s).")] = 1e-2,
+    time_limit: Annotated[float, typer.Option("--time-limit", help="Seconds per solve.")] = 30.0,
+    run_budget: Annotated[
+        float, typer.Option("--run-budget", help="Seconds per (solver, eps) run.")
+    ] = 60.0,
+    out: Out = DEFAULT_OUT,
+) -> None:
+    """Fig. 3: the largest tolerance at which each backend keeps a static box at rest."""
+    from cocd.bench import validate
+
+    _go(
+        lambda: validate.stability(
+            solvers=solvers,
+            eps_list=_floats(eps_list, "--eps-list"),
+            n=n,
+            dim=dim,
+            t_end=t_end,
+            dt=dt,
+            time_limit=time_limit,
+            run_budget=run_budget,
+            out=out,
+        )
+    )

@@ -1,0 +1,143 @@
+"""``cocd validate``: tiny versions of the seed paper's physics cases.
+
+Each test runs a case on a few tens of discs and checks the direction of its
+effect (a smaller time step converges; COCD and NSCD give close profiles; an
+erodible layer lengthens the runout), the files it writes, and that running
+it again only reads its run files.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from cocd.bench import validate
+from cocd.cli import app
+from cocd.errors import CocdError
+
+runner = CliRunner()
+
+
+def _quiet(lines):
+    return lines.append
+
+
+def test_smaller_time_steps_converge(tmp_path):
+    lines: list[str] = []
+    table = validate.timestep(
+        n=30,
+        dts=[2e-3, 1e-3, 5e-4],
+        times=[0.02, 0.06],
+        solver="clarabel",
+        out=tmp_path,
+        progress=lines.append,
+    )
+    assert sorted(table.dt.unique()) == [5e-4, 1e-3, 2e-3]
+    for t in (0.02, 0.06):
+        err = table[table.t == t].set_index("dt").profile_error
+        assert err[5e-4] == 0.0  # the reference against itself
+        # Halving the step brings the profile closer to the reference, and every
+        # profile is already within a few per cent of it.
+        assert 0.0 < err[1e-3] < err[2e-3] < 0.05
+    for name in ("timestep.csv", "timestep.md", "timestep_profiles.png", "timestep_error.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    meta = json.loads((tmp_path / "timestep.meta.json").read_text())
+    assert "Profile error of dt = 0.002 s" in meta["summary"]
+    readme = (tmp_path / "README.md").read_text()
+    assert readme.startswith("# Validation against the seed paper")
+    assert "Time step convergence (Fig. 2)" in readme
+    # Run again: every run file is complete, so nothing is stepped, same table.
+    again: list[str] = []
+    table2 = validate.timestep(
+        n=30,
+        dts=[2e-3, 1e-3, 5e-4],
+        times=[0.02, 0.06],
+        solver="clarabel",
+        out=tmp_path,
+        progress=again.append,
+    )
+    assert not any("step " in line for line in again)
+    pd.testing.assert_frame_equal(table.drop(columns="compute_s"), table2.drop(columns="compute_s"))
+
+
+def test_cocd_and_nscd_profiles_are_close(tmp_path):
+    table = validate.nscd(
+        n=30,
+        times_T=[0.5, 1.0],
+        convex="clarabel",
+        out=tmp_path,
+        progress=_quiet([]),
+    )
+    assert list(table.t) == pytest.approx([0.06, 0.12])
+    # Both schemes solve their own problem to tolerance.
+    assert (table.max_residual_cocd <= 1e-5).all() and (table.max_residual_nscd <= 1e-2).all()
+    # The convexification changes the profiles by a few per cent at most here.
+    assert (table.profile_difference < 0.05).all()
+    assert (table.profile_difference > 0.0).any()
+    d = 0.03  # about one mean diameter of these discs
+    assert np.all(np.abs(table.front_cocd_m - table.front_nscd_m) < d)
+
+
+def test_an_erodible_layer_lengthens_the_runout(tmp_path):
+    table = validate.erodible(
+        n=60,
+        slopes=[22.0],
+        layers_d=[0.0, 3.0],
+        until=0.6,
+        bed_length=1.2,
+        solver="clarabel",
+        out=tmp_path,
+        progress=_quiet([]),
+    )
+    runout = table.set_index("layer_d").runout_m
+    assert runout[0.0] > 0.1  # the column spreads down the slope
+    # The seed's Fig. 9 and the experiments: the layer lengthens the runout.
+    assert runout[3.0] > 1.2 * runout[0.0]
+    assert table.set_index("layer_d").runout_ratio[3.0] == pytest.approx(runout[3.0] / runout[0.0])
+    assert table.n_layer.iloc[0] == 0 and table.n_layer.iloc[1] > 100
+    assert not table.reached_end.any()
+    assert (tmp_path / "erodible_front.png").stat().st_size > 0
+
+
+def test_profile_error_and_thresholds():
+    assert validate.profile_error([1.0, 2.0], [1.0, 2.0]) == 0.0
+    assert validate.profile_error([0.0, 2.0], [1.0, 2.0]) == pytest.approx(1 / math.sqrt(5))
+    with pytest.raises(CocdError, match="empty"):
+        validate.profile_error([1.0], [0.0])
+    with pytest.raises(CocdError, match="different bins"):
+        validate.profile_error([1.0], [1.0, 2.0])
+    summary = pd.DataFrame(
+        {
+            "solver": ["a"] * 3 + ["b"] * 2,
+            "eps": [1e-1, 1e-2, 1e-3, 1e-1, 1e-2],
+            "steps_done": [5, 5, 5, 5, 2],
+            "steps_asked": [5] * 5,
+            "at_rest": [False, True, True, False, False],
+        }
+    )
+    th = validate.stability_thresholds(summary).set_index("solver")
+    assert th.loc["a", "largest_eps_at_rest"] == 1e-2 and th.loc["a", "consistent"]
+    assert math.isnan(th.loc["b", "largest_eps_at_rest"]) and not th.loc["b", "consistent"]
+    assert th.loc["b", "unfinished"] == "0.01"
+
+
+def test_bad_arguments_are_one_line_errors(tmp_path):
+    out = ["--out", str(tmp_path)]
+    for args, message in (
+        (["timestep", "--dts", "1e-3"], "at least two time steps"),
+        (["timestep", "--dts", "1e-3,abc"], "--dts must be comma-separated numbers"),
+        (["timestep", "--dts", "1e-3,3e-4"], "do not fall on whole numbers"),
+        (["timestep", "--n", "0"], "n must be an integer >= 1"),
+        (["erodible", "--layers", "0,-3"], "layer thicknesses must be >= 0"),
+        (["erodible", "--slopes", "95"], "slopes must be in [0, 90)"),
+        (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
+    ):
+        result = runner.invoke(app, ["validate", *args, *out])
+        assert result.exit_code == 2, (args, result.output)
+        assert message in result.output, (args, result.output)
+        assert "Traceback" not in result.output
