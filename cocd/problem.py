@@ -471,11 +471,22 @@ class ConicProblem:
         )
 
 
-def assemble(scene: Scene, contacts: ContactSet, dt: float) -> ConicProblem:
+def assemble(
+    scene: Scene,
+    contacts: ContactSet,
+    dt: float,
+    *,
+    forces: FloatArray | None = None,
+    torques: FloatArray | None = None,
+) -> ConicProblem:
     """Build the step problem of ``scene`` with the given potential contacts.
 
     Frictionless scenes drop the rotations and the tangential rows (the
-    problem is then a QP in translations only).
+    problem is then a QP in translations only). ``forces`` (``(n, d)``, N) and
+    ``torques`` (``(n,)`` in 2D, ``(n, 3)`` in 3D, N m) are external loads on
+    every grain (fixed ones ignored), added to gravity in the free velocity
+    ``U = v + dt M^-1 (m g + F)``; checked by :func:`cocd.coupling.resolve_loads`.
+    Torques do not enter a frictionless problem (it has no rotations).
     """
     if not (np.isfinite(dt) and dt > 0.0):
         raise ProblemError(f"time step dt must be finite and > 0, got {dt}")
@@ -500,6 +511,13 @@ def assemble(scene: Scene, contacts: ContactSet, dt: float) -> ConicProblem:
     u = generalized_velocity(scene, frictionless)
     accel = np.zeros((scene.n_free, per_grain))
     accel[:, :d] = scene.gravity
+    if forces is not None:
+        accel[:, :d] += forces[free] / m[:, None]
+    if torques is not None and not frictionless:
+        # The rotational unknown is r * omega: its rate is r tau / I.
+        r = scene.radii[free]
+        gain = r / scene.inertia[free]
+        accel[:, d:] += (gain * torques[free]) if d == 2 else gain[:, None] * torques[free]
     U = u + dt * accel.reshape(-1)
     return ConicProblem(
         dim=d,

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 import solvers
 from cocd.contacts import ContactSet, detect_contacts
+from cocd.coupling import grain_impulses, resolve_loads
 from cocd.errors import ProblemError, SolverError
 from cocd.measure import kinetic_energy, potential_energy
 from cocd.problem import ConicProblem, assemble, scatter_velocity
@@ -27,6 +28,8 @@ from cocd.scene import DEFAULT_OVERLAP_TOL, Scene
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from cocd.coupling import ExternalLoads
 
 __all__ = ["StepRecord", "Stepper", "match_impulses"]
 
@@ -104,6 +107,12 @@ class Stepper:
         backends tried in turn when the one before fails; the statistics record
         which backend answered (``solver``) and why the others failed
         (``failures``); when every one fails, :class:`SolverError` names them all.
+    external : Loads, array, (forces, torques) or callable, optional
+        External loads on the grains (:mod:`cocd.coupling`): fixed, or a
+        callable ``f(scene, t)`` called at the start of every step (``t``: the
+        time then) returning them; e.g. the drag and buoyancy of a fluid
+        solver. :meth:`contact_impulses` gives such a solver the contact
+        impulses per grain of the last step.
     residual_factor : float or None
         A step fails when its residual (``ccp_residual``; ``coulomb_residual``
         for the non-convex backends) is above ``residual_factor * tol``
@@ -132,6 +141,7 @@ class Stepper:
         fclib_dir: str | os.PathLike[str] | None = None,
         fclib_steps: Collection[int] | None = None,
         fallback: Sequence[str] = (),
+        external: ExternalLoads | None = None,
         residual_factor: float | None = 1e3,
         energy_factor: float | None = 100.0,
     ) -> None:
@@ -165,6 +175,9 @@ class Stepper:
         self.residual_factor = residual_factor
         self.energy_factor = energy_factor
         scene.check_overlaps(overlap_tol)
+        if external is not None and not callable(external):
+            resolve_loads(external, scene)  # a fixed load is checked once, here
+        self.external = external
         self.scene = scene
         self.dt = dt
         self.solver = solver
@@ -206,9 +219,11 @@ class Stepper:
     def step(self) -> StepRecord:
         """Advance the scene by one time step and return its statistics."""
         scene = self.scene
+        k = self.step_count + 1
+        forces, torques = self._loads(k)
         start = time.perf_counter()
         contacts = detect_contacts(scene, self.d_max)
-        problem = assemble(scene, contacts, self.dt)
+        problem = assemble(scene, contacts, self.dt, forces=forces, torques=torques)
         detect_time = time.perf_counter() - start
 
         p0 = None
@@ -216,7 +231,6 @@ class Stepper:
             p0 = match_impulses(*self.previous, contacts.keys)
             if p0.shape[1] != problem.contact_dim:
                 p0 = None
-        k = self.step_count + 1
         where = f"step {k} (t = {scene.time + self.dt:.6g} s, {problem.nc} contacts)"
         energy_before = kinetic_energy(scene)
         failures: list[str] = []
@@ -248,6 +262,11 @@ class Stepper:
 
         scatter_velocity(scene, problem.velocity(solution.p), problem.contact_dim == 1)
         free = scene.free
+        if torques is not None and problem.contact_dim == 1:
+            # Frictionless: no contact acts on the rotations, the torque alone does.
+            scene.angular_velocities[free] += (
+                self.dt * torques[free] / _rotational_inertia(scene)[free]
+            )
         scene.positions[free] += self.dt * scene.velocities[free]
         scene.time += self.dt
 
@@ -277,6 +296,32 @@ class Stepper:
         if self.fclib_dir is not None and (self.fclib_steps is None or k in self.fclib_steps):
             self.export_step(self.fclib_dir / f"step_{k:06d}.hdf5")
         return record
+
+    def _loads(self, k: int) -> tuple[FloatArray | None, FloatArray | None]:
+        """The external loads of step ``k``, checked."""
+        ext = self.external
+        if ext is None:
+            return None, None
+        where = f"external loads of step {k} (t = {self.scene.time:.6g} s)"
+        if callable(ext):
+            try:
+                ext = ext(self.scene, self.scene.time)
+            except ProblemError:
+                raise
+            except Exception as exc:
+                raise ProblemError(f"{where}: the load callable raised {exc!r}") from exc
+        return resolve_loads(ext, self.scene, where)
+
+    def contact_impulses(self) -> tuple[FloatArray, FloatArray]:
+        """Net contact impulse (N s, ``(n, d)``) and angular impulse about the centre
+        (N m s, ``(n,)`` in 2D, ``(n, 3)`` in 3D) on each grain in the last step.
+
+        Divide by ``dt`` for mean contact forces and torques. Fixed grains get
+        zeros. Raises :class:`ProblemError` before the first step.
+        """
+        if self.problem is None or self.solution is None:
+            raise ProblemError("no step has been taken yet: no contact impulses")
+        return grain_impulses(self.scene, self.problem, self.solution.p)
 
     def _judge(
         self, problem: ConicProblem, solution: solvers.Solution, convex: bool, energy_before: float
@@ -382,6 +427,11 @@ class Stepper:
 
         columns = list(StepRecord.__dataclass_fields__)
         return pd.DataFrame([r.as_dict() for r in self.records], columns=columns)
+
+
+def _rotational_inertia(scene: Scene) -> FloatArray:
+    inertia = scene.inertia
+    return inertia if scene.dim == 2 else inertia[:, None]
 
 
 def match_impulses(

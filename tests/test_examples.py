@@ -33,3 +33,20 @@ def test_collapse_2d_slope_writes_its_files(tmp_path, monkeypatch):
     # 0.03 s is far too short to stop: the verdict must say so.
     assert meta["summary"].startswith("NOT at rest")
     assert "front velocity" in meta["summary"]
+
+
+def test_settling_in_fluid_reaches_stokes_velocity_and_rests_on_the_floor():
+    script = ROOT / "examples" / "settling_in_fluid.py"
+    res = subprocess.run(
+        [sys.executable, str(script), "--n", "8", "--until", "0.8"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    ratios = [float(line.rsplit("ratio ", 1)[1].rstrip(")")) for line in lines if "ratio" in line]
+    fall, load = ratios
+    # Terminal velocity reached, and at rest the contacts carry the buoyant weight.
+    assert abs(fall - 1.0) < 1e-3 and abs(load - 1.0) < 1e-6
+    assert float(lines[-1].split(":")[1].split()[0]) < 1e-9
