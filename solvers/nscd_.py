@@ -42,13 +42,22 @@ cocd                      NSCD
 ``verbose``               prints the residual at every test
 ``**options``             ``relax`` (default 1.0: ``p_a <- relax p_local +
                           (1 - relax) p_a``), ``symmetric`` (default False),
-                          ``check_every`` (default 4)
+                          ``check_every`` (default 4), ``local``: ``"exact"``
+                          (default) or ``"fb"`` (see below)
 ========================  =====================================================
+
+``local="fb"`` is the hybrid local solver of Gauss-Seidel codes: Newton on the
+modified Fischer-Burmeister function of the contact, started from its current
+impulse, with the exact solver when Newton does not reach the local law to 1e-12
+(:func:`solvers._nscd_kernels.local_solve_fb`). Where the law has several local
+solutions (large ``mu``), the two may pick different ones.
 
 ``iterations`` counts sweeps. ``extras``: ``history`` (``(sweep,
 coulomb_residual)`` at every test), ``coulomb_residual`` of the answer, ``dp_max``
-(largest impulse change in the last sweep) and ``branches`` (how many contacts
-ended separated, sticking and sliding).
+(largest impulse change in the last sweep), ``branches`` (how many contacts
+ended separated, sticking and sliding), ``local`` and, with ``local="fb"``,
+``local_newton`` and ``local_fallbacks`` (local solves ended by Newton, and by
+the exact solver).
 """
 
 from __future__ import annotations
@@ -61,7 +70,7 @@ import numpy as np
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import coulomb_residual
-from solvers._nscd_kernels import delassus_blocks, nscd_sweeps
+from solvers._nscd_kernels import LOCAL_EXACT, LOCAL_FB, delassus_blocks, nscd_sweeps
 from solvers.base import Solution, Status
 
 if TYPE_CHECKING:
@@ -72,7 +81,8 @@ if TYPE_CHECKING:
 __all__ = ["DEFAULT_MAX_SWEEPS", "nscd_solve_problem"]
 
 DEFAULT_MAX_SWEEPS = 20000
-_OPTIONS = {"relax", "symmetric", "check_every"}
+_OPTIONS = {"relax", "symmetric", "check_every", "local"}
+_LOCAL = {"exact": LOCAL_EXACT, "fb": LOCAL_FB}
 
 
 def nscd_solve_problem(
@@ -98,6 +108,11 @@ def nscd_solve_problem(
     check_every = options.get("check_every", 4)
     if not isinstance(check_every, int) or check_every < 1:
         raise ProblemError(f"nscd: check_every must be a positive integer, got {check_every!r}")
+    local_name = options.get("local", "exact")
+    if local_name not in _LOCAL:
+        raise ProblemError(f"nscd: local must be one of {sorted(_LOCAL)}, got {local_name!r}")
+    local = _LOCAL[local_name]
+    counts = np.zeros(2, dtype=np.int64)
     max_sweeps = DEFAULT_MAX_SWEEPS if max_iter is None else int(max_iter)
 
     start = time.perf_counter()
@@ -138,7 +153,7 @@ def nscd_solve_problem(
         chunk = 1 if sweeps == 0 else min(check_every, max_sweeps - sweeps)
         dp_max = nscd_sweeps(
             indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v,
-            chunk, symmetric, relax, shift,
+            chunk, symmetric, relax, shift, local, counts,
         )  # fmt: skip
         sweeps += chunk
         # Rounding accumulates in v over many updates: restart it from p.
@@ -170,6 +185,9 @@ def nscd_solve_problem(
             "history": history,
             "dp_max": dp_max,
             "branches": _branches(problem, best_p),
+            "local": local_name,
+            "local_newton": int(counts[0]),
+            "local_fallbacks": int(counts[1]),
         },
     )
 

@@ -146,6 +146,45 @@ def test_local_solver_is_exact(m):
     assert seen == ({0, 1} if m == 1 else {0, 1, 2})
 
 
+@pytest.mark.parametrize("m", [2, 3])
+def test_fischer_burmeister_local_solver_with_exact_fallback(m):
+    """The hybrid local solver always meets the one-contact law to rounding (Newton's
+    answer is checked, the exact solver takes over when it misses); Newton answers most
+    blocks from arbitrary starts, and at once from a solution."""
+    rng = np.random.default_rng(10 + m)
+    out = np.zeros(m)
+    newton = 0
+    n = 2000
+    for _ in range(n):
+        W = _random_block(rng, m)
+        Winv = np.linalg.inv(W)
+        r = rng.normal(size=m) * 10.0 ** rng.uniform(-3, 3)
+        mu = float(rng.choice([0.1, 0.3, 1.0, 5.0]))
+        start = rng.normal(size=m) * np.linalg.norm(Winv @ r) if rng.random() < 0.5 else np.zeros(m)
+        newton += kernels.local_solve_fb(W, Winv, r, mu, start, out)
+        scale = np.linalg.norm(r) * m / np.trace(W)
+        assert kernels._local_residual(W, r, mu, out) <= 1e-12 * scale
+        exact = np.zeros(m)
+        kernels.local_solve(W, Winv, r, mu, exact)
+        again = np.zeros(m)
+        assert kernels.local_solve_fb(W, Winv, r, mu, exact, again)
+        assert np.allclose(again, exact, rtol=0.0, atol=1e-9 * scale)
+    assert newton >= 0.8 * n
+
+
+@pytest.mark.parametrize("problem_name", ["column-2d", "heap-3d", "stack-3d"])
+def test_nscd_local_strategies_agree(problem_name, problems):
+    problem = problems(problem_name)
+    exact = solvers.solve(problem, "nscd", tol=TOL)
+    fb = solvers.solve(problem, "nscd", tol=TOL, local="fb")
+    assert exact.status == fb.status == "optimal"
+    assert coulomb_residual(problem, fb.p) <= COULOMB
+    assert fb.extras["local"] == "fb" and exact.extras["local"] == "exact"
+    assert fb.extras["local_newton"] > fb.extras["local_fallbacks"]
+    if problem_name in UNIQUE:
+        assert _velocity_error(problem, fb.u, exact.u) <= SAME_U
+
+
 def test_local_3d_sliding_every_angle_finder_agrees():
     """Newton from the stick trial, the roots of the quartic (from any start) and the
     last resort, a scan with bisection, find valid slip angles. The scan can miss a root
@@ -347,6 +386,8 @@ def test_bad_names_and_options(problems):
     assert isinstance(info.value.__cause__, SolverNotFound)
     with pytest.raises(ProblemError, match="colour"):
         solvers.solve(problem, "nscd", colour="red")
+    with pytest.raises(ProblemError, match="local must be one of"):
+        solvers.solve(problem, "nscd", local="newton")
     with pytest.raises(ProblemError, match="colour"):
         solvers.solve(problem, "fp:clarabel", colour="red")
     assert solvers.get("fp:clarabel-dual").convex is False
