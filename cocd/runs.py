@@ -29,8 +29,10 @@ __all__ = ["RUN_FILE", "Progress", "RunSummary", "run"]
 #: Name of the run file in the output folder.
 RUN_FILE = "run.h5"
 
-#: Keys of the resolved configuration that may change when a run is resumed.
-_RESUMABLE_CHANGES = {"until", "steps"}
+#: Keys of the resolved configuration that may change when a run is resumed: the end,
+#: and the iteration cap (a step that hit the cap failed and was not written, so a run
+#: resumed with a larger cap takes the steps an uninterrupted run with it would have).
+_RESUMABLE_CHANGES = {"until", "steps", "max_iter"}
 
 
 @dataclass(frozen=True)

@@ -180,6 +180,12 @@ def test_resume_refuses_another_scene_or_time_step(tmp_path):
     finer = {**base, "run": {"steps": 2, "dt": 5e-4}}
     with pytest.raises(RunFileError, match=r"run.dt was 0.001, now 0.0005"):
         run(parse_config(finer), tmp_path, resume=True)
+    other_solver = {**base, "run": {"steps": 2, "solver": "scs"}}
+    with pytest.raises(RunFileError, match=r"run.solver was 'clarabel', now 'scs'"):
+        run(parse_config(other_solver), tmp_path, resume=True)
+    # A larger iteration cap (after a step that hit the smaller one) is allowed.
+    capped = {**base, "run": {"steps": 3, "max_iter": 500}}
+    assert run(parse_config(capped), tmp_path, resume=True).steps == 3
 
 
 def test_not_a_run_file_is_named(tmp_path):

@@ -104,6 +104,59 @@ def test_an_erodible_layer_lengthens_the_runout(tmp_path):
     assert (tmp_path / "erodible_front.png").stat().st_size > 0
 
 
+def test_runout_grows_with_the_aspect_ratio(tmp_path):
+    from cocd.bench.runout import scaling
+
+    table = scaling(
+        aspects=[0.5, 1.0, 2.0, 4.0],
+        area=0.004,
+        diameter=0.01,
+        solver="clarabel",
+        rest_T=8.0,
+        min_time=0.5,
+        out=tmp_path,
+        progress=_quiet([]),
+    )
+    # Taller columns run out further and lose more of their height.
+    assert np.all(np.diff(table.runout) > 0.0)
+    assert np.all(np.diff(1.0 / table.Hf_over_H0) > 0.0)
+    assert not table.reached_end.any()
+    assert (table.front_speed_end_d_per_s < 1.0).all()  # at rest at the end
+    fits = pd.read_csv(tmp_path / "runout_scaling_fit.csv").set_index("quantity")
+    assert fits.loc["(Lf - L0)/L0", "k_all"] > 0.5
+    assert (tmp_path / "runout_scaling.png").stat().st_size > 0
+
+
+def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path):
+    from cocd.bench.avalanche import avalanche
+
+    kwargs = dict(n=60, width_d=20, step_deg=1.0, hold=0.1, start_deg=6, solver="clarabel")
+    table = avalanche(mus=[0.1, 0.6], out=tmp_path, progress=_quiet([]), **kwargs)
+    low, high = table.iloc[0], table.iloc[1]
+    assert (table.avalanche_deg >= table.stop_deg).all()
+    assert high.avalanche_deg > low.avalanche_deg and high.stop_deg > low.stop_deg
+    assert 5.0 < low.stop_deg < 45.0 and 5.0 < high.avalanche_deg < 45.0
+    trace = pd.read_csv(tmp_path / "avalanche_trace.csv")
+    assert set(trace.phase) == {"up", "down"}
+    # Run again: each friction coefficient already measured is read back, not re-run.
+    lines: list[str] = []
+    again = avalanche(mus=[0.1, 0.6], out=tmp_path, progress=lines.append, **kwargs)
+    assert sum("already measured" in line for line in lines) == 2
+    assert np.allclose(again.avalanche_deg, table.avalanche_deg)
+
+
+def test_two_power_laws_are_recovered():
+    from cocd.bench.runout import fit_two_power_laws
+
+    a = np.geomspace(0.5, 10.0, 8)
+    y = np.where(a < 3.0, 2.0 * a, 2.0 * 3.0 ** (1 / 3) * a ** (2 / 3))
+    fit = fit_two_power_laws(a, y)
+    assert fit["k_low"] == pytest.approx(1.0) and fit["k_high"] == pytest.approx(2 / 3)
+    assert 2.0 < fit["a_c"] < 4.5
+    with pytest.raises(CocdError, match="positive, finite"):
+        fit_two_power_laws([1.0, 2.0], [1.0, -1.0])
+
+
 def test_profile_error_and_thresholds():
     assert validate.profile_error([1.0, 2.0], [1.0, 2.0]) == 0.0
     assert validate.profile_error([0.0, 2.0], [1.0, 2.0]) == pytest.approx(1 / math.sqrt(5))
@@ -136,6 +189,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["erodible", "--layers", "0,-3"], "layer thicknesses must be >= 0"),
         (["erodible", "--slopes", "95"], "slopes must be in [0, 90)"),
         (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
+        (["scaling", "--aspects", "1,2"], "at least 4 aspect ratios"),
+        (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
     ):
         result = runner.invoke(app, ["validate", *args, *out])
         assert result.exit_code == 2, (args, result.output)

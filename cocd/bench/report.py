@@ -50,6 +50,8 @@ ORDER = [
     "nscd",
     "erodible",
     "stability_threshold",
+    "runout_scaling",
+    "avalanche",
 ]
 
 PACKAGES = [

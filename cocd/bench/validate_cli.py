@@ -1,4 +1,5 @@
-"""``cocd validate``: the seed paper's physics cases (:mod:`cocd.bench.validate`).
+"""``cocd validate``: the seeds' physics cases (:mod:`cocd.bench.validate`,
+:mod:`cocd.bench.runout`, :mod:`cocd.bench.avalanche`).
 
 Each command runs its simulations (resumable run files under
 ``OUT/runs/<case>/``), writes its table and figures under ``--out`` (default
@@ -19,7 +20,8 @@ from cocd.errors import CocdError
 validate_app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
-    help="Reproduce the seed paper's physics: time step, NSCD, erodible beds, stability.",
+    help="Reproduce the seeds' physics: time step, NSCD, erodible beds, stability, "
+    "runout scaling, avalanche angles.",
 )
 
 Out = Annotated[Path, typer.Option("--out", help="Output directory.")]
@@ -196,5 +198,73 @@ def stability(
             time_limit=time_limit,
             run_budget=run_budget,
             out=out,
+        )
+    )
+
+
+@validate_app.command()
+def scaling(
+    aspects: Annotated[
+        str, typer.Option("--aspects", help="Aspect ratios H0/L0.")
+    ] = "0.5,0.9,1.6,3,5.5,10",
+    area: Annotated[float, typer.Option("--area", help="Column cross-section L0 H0 (m^2).")] = 0.02,
+    diameter: Annotated[float, typer.Option("--diameter", help="Mean grain diameter (m).")] = 0.007,
+    mu: Mu = 0.5,
+    rest_t: Annotated[
+        float, typer.Option("--rest-T", help="Run time in units of sqrt(H0/g).")
+    ] = 12.0,
+    solver: Solver = "ipm",
+    tol: Tol = 1e-6,
+    fallback: Fallback = "clarabel",
+    fresh: Fresh = False,
+    out: Out = DEFAULT_OUT,
+) -> None:
+    """Seed 001: runout and deposit height of 2D collapses against the aspect ratio."""
+    from cocd.bench import runout
+
+    _go(
+        lambda: runout.scaling(
+            aspects=_floats(aspects, "--aspects"),
+            area=area,
+            diameter=diameter,
+            mu=mu,
+            rest_T=rest_t,
+            solver=solver,
+            tol=tol,
+            fallback=_names(fallback),
+            out=out,
+            fresh=fresh,
+        )
+    )
+
+
+@validate_app.command()
+def avalanche(
+    mus: Annotated[str, typer.Option("--mus", help="Friction coefficients.")] = "0.2,0.4,0.8",
+    n: Annotated[int, typer.Option("--n", help="Discs in the layer.")] = 300,
+    width_d: Annotated[float, typer.Option("--width-d", help="Box width in diameters.")] = 50.0,
+    step_deg: Annotated[float, typer.Option("--step-deg", help="Tilt step (degrees).")] = 0.5,
+    hold: Annotated[float, typer.Option("--hold", help="Seconds held at each tilt.")] = 0.15,
+    solver: Solver = "ipm",
+    tol: Tol = 1e-6,
+    fallback: Fallback = "clarabel",
+    fresh: Fresh = False,
+    out: Out = DEFAULT_OUT,
+) -> None:
+    """Seed 001: avalanche and stop angles of a tilted layer against grain friction."""
+    from cocd.bench import avalanche as mod
+
+    _go(
+        lambda: mod.avalanche(
+            mus=_floats(mus, "--mus"),
+            n=n,
+            width_d=width_d,
+            step_deg=step_deg,
+            hold=hold,
+            solver=solver,
+            tol=tol,
+            fallback=_names(fallback),
+            out=out,
+            fresh=fresh,
         )
     )

@@ -1,0 +1,248 @@
+"""``cocd validate avalanche``: avalanche and stop angles of a tilted granular layer.
+
+A 2D layer of discs settled in a box (:func:`cocd.builders.static_box`) is
+tilted by rotating gravity, ``g (sin t, -cos t)``, in steps of ``step_deg``
+held ``hold`` seconds each:
+
+- going up from ``start_deg``, the layer flows at the end of some hold (mean
+  grain speed above ``v_flow``): the **avalanche angle** is its surface's angle
+  to the horizontal at the start of that hold (the settled surface is nearly
+  flat in the box, so close to the tilt);
+- then going down one step at a time, the layer keeps flowing until a hold
+  ends at rest: that tilt is the **stop tilt**, and the surface's angle to the
+  horizontal then (fitted to the free surface away from the walls) is the
+  **stop angle**, the angle of repose.
+
+The hysteresis is ``avalanche - stop angle``: a granular material starts to
+flow at a steeper slope than the one at which it stops (a DEM shows it; the
+continuum model of seed 001, with one friction angle, cannot). Both angles
+grow with the grains' friction coefficient.
+
+Each friction coefficient is one sequence of holds; its result row is written
+to ``OUT/runs/avalanche/mu<mu>.csv`` when done, so a command run again skips
+the coefficients already measured (``fresh`` redoes them).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cocd.bench import validate as base
+from cocd.errors import CocdError, SolverError
+
+__all__ = ["avalanche", "surface_angle"]
+
+G = 9.81
+
+
+def surface_angle(scene: Any, tilt_deg: float, *, margin_d: float = 3.0) -> float:
+    """Angle (degrees) of the layer's free surface to the horizontal, the box tilted by
+    ``tilt_deg`` (gravity rotated towards +x).
+
+    The surface heights (:func:`cocd.measure.mass_profile` on bins two mean diameters
+    wide, ``margin_d`` diameters away from the side walls) are fitted by a line of
+    slope ``s`` in the box; the surface then makes ``tilt - atan(s)`` with the
+    horizontal (a flat surface, ``s = 0``, is inclined by the tilt).
+    """
+    from cocd.measure import mass_profile
+
+    free = scene.free
+    x = scene.positions[free]
+    d = 2.0 * float(scene.radii[free].mean())
+    lo = float(np.min(x[:, 0])) + margin_d * d
+    hi = float(np.max(x[:, 0])) - margin_d * d
+    if hi - lo < 4.0 * d:
+        raise CocdError("the layer is too narrow to fit its surface")
+    edges = np.arange(lo, hi + 1e-12, 2.0 * d)
+    prof = mass_profile(scene, x_bins=edges, connected=False)
+    ok = np.isfinite(prof.height)
+    slope = float(np.polyfit(prof.x_centres[ok], prof.height[ok], 1)[0])
+    return float(tilt_deg - math.degrees(math.atan(slope)))
+
+
+def avalanche(
+    *,
+    mus: Sequence[float] = (0.2, 0.4, 0.8),
+    n: int = 300,
+    width_d: float = 50.0,
+    diameter: float = 0.005,
+    start_deg: float = 4.0,
+    step_deg: float = 0.5,
+    max_deg: float = 45.0,
+    hold: float = 0.15,
+    dt: float = 1e-3,
+    v_flow: float = 0.01,
+    solver: str = "ipm",
+    tol: float = 1e-6,
+    fallback: Sequence[str] = ("clarabel",),
+    out: Path = Path("results/validation"),
+    fresh: bool = False,
+    progress: Callable[[str], Any] = print,
+) -> pd.DataFrame:
+    """Avalanche and stop angles of a tilted 2D layer against the friction coefficient.
+
+    ``n`` discs of mean ``diameter`` in a box ``width_d`` diameters wide;
+    ``v_flow`` is the flow threshold on the mean grain speed, in units of
+    ``sqrt(g d)``. Returns the table written to ``avalanche.csv``, one row per
+    friction coefficient.
+    """
+    from cocd.builders import static_box
+    from cocd.stepper import Stepper
+
+    mus = sorted(base._positive_list("mus", mus))
+    n = base._positive_int("n", n, 10)
+    width_d, diameter, step_deg, hold, dt, v_flow = base._positive_list(
+        "width_d, diameter, step_deg, hold, dt, v_flow",
+        [width_d, diameter, step_deg, hold, dt, v_flow],
+    )
+    if not (0.0 <= start_deg < max_deg < 90.0):
+        raise CocdError(f"need 0 <= start_deg < max_deg < 90, got {start_deg}, {max_deg}")
+    out = Path(out)
+    cells = out / "runs" / "avalanche"
+    cells.mkdir(parents=True, exist_ok=True)
+    hold_steps = max(1, round(hold / dt))
+    threshold = v_flow * math.sqrt(G * diameter)
+    rows, traces = [], []
+    for mu in mus:
+        cell = cells / f"n{n}_mu{mu:g}.csv"
+        trace_file = cells / f"n{n}_mu{mu:g}_trace.csv"
+        if cell.exists() and trace_file.exists() and not fresh:
+            rows.append(pd.read_csv(cell).iloc[0].to_dict())
+            traces.append(pd.read_csv(trace_file))
+            progress(f"avalanche: mu = {mu:g} already measured ({cell})")
+            continue
+        scene = static_box(2, n_grains=n, diameter=diameter, width=width_d * diameter, mu=mu)
+        stepper = Stepper(scene, dt, solver=solver, tol=tol, fallback=fallback)
+        trace: list[dict[str, Any]] = []
+        tilt = start_deg
+        progress(f"avalanche: mu = {mu:g}, {scene.n_free} discs, tilting from {tilt:g} deg")
+        while _hold(stepper, tilt, hold_steps, "up", trace) <= threshold:
+            tilt += step_deg
+            if tilt > max_deg:
+                raise CocdError(f"avalanche, mu = {mu:g}: no flow up to {max_deg:g} deg")
+        avalanche_deg = trace[-1]["surface_before_deg"]
+        avalanche_tilt = tilt
+        progress(f"avalanche: mu = {mu:g} flows at tilt {tilt:g} deg; lowering the tilt")
+        while True:
+            tilt -= step_deg
+            if tilt < 0.0:
+                raise CocdError(f"avalanche, mu = {mu:g}: still flowing at 0 deg")
+            if _hold(stepper, tilt, hold_steps, "down", trace) <= threshold:
+                break
+        row = {
+            "mu": mu,
+            "n_grains": scene.n_free,
+            "avalanche_tilt_deg": avalanche_tilt,
+            "avalanche_deg": avalanche_deg,
+            "stop_tilt_deg": tilt,
+            "stop_deg": trace[-1]["surface_after_deg"],
+            "hysteresis_deg": avalanche_deg - trace[-1]["surface_after_deg"],
+            "holds": len(trace),
+            "steps": stepper.step_count,
+            "compute_s": float(
+                (
+                    stepper.stats().detect_time
+                    + stepper.stats().setup_time
+                    + stepper.stats().solve_time
+                ).sum()
+            ),
+        }
+        progress(
+            f"avalanche: mu = {mu:g}: avalanche at {avalanche_deg:.1f} deg, stops at tilt {tilt:g} "
+            f"with its surface at {row['stop_deg']:.1f} deg"
+        )
+        pd.DataFrame(trace).to_csv(trace_file, index=False)
+        pd.DataFrame([row]).to_csv(cell, index=False)  # last: marks the cell done
+        rows.append(row)
+        traces.append(pd.DataFrame(trace))
+    table = pd.DataFrame(rows)
+    trace_table = pd.concat(traces, ignore_index=True)
+    trace_path = out / "avalanche_trace.csv"
+    trace_table.to_csv(trace_path, index=False)
+    figures = [_figure(out / "avalanche.png", table, trace_table, threshold), trace_path]
+    angles = "; ".join(
+        f"mu {r.mu:g}: {r.avalanche_deg:.1f} and {r.stop_deg:.1f} deg" for r in table.itertuples()
+    )
+    summary = (
+        f"A 2D layer of about {n} discs (d = {diameter * 1e3:g} mm) in a box {width_d:g} d "
+        f"wide, tilted in {step_deg:g} deg steps held {hold:g} s, `{solver}` at tol {tol:g}; "
+        f"flow when the mean speed exceeds {v_flow:g} sqrt(g d). Avalanche and stop angles: "
+        f"**{angles}**; hysteresis "
+        f"{', '.join(f'{h:.1f}' for h in table.hysteresis_deg)} deg. A DEM shows "
+        "avalanche > stop, both growing with friction; seed 001's continuum model, with a "
+        "single friction angle, starts and stops at the same angle."
+    )
+    intro = (
+        "`avalanche_tilt_deg`: the first tilt at whose end the layer flows; "
+        "`avalanche_deg`: its surface's angle to the horizontal at the start of that hold; "
+        "`stop_tilt_deg`: lowering the tilt, the first at whose end it is at rest; "
+        "`stop_deg`: its surface's angle to the horizontal then (the angle of repose); "
+        "`hysteresis_deg` = avalanche - stop. Every hold is in `avalanche_trace.csv`."
+    )
+    base._finish(
+        out,
+        "avalanche",
+        "Avalanche and stop angles (seed 001)",
+        table,
+        intro,
+        summary,
+        figures,
+        progress,
+    )
+    return table
+
+
+def _hold(stepper: Any, tilt: float, steps: int, phase: str, trace: list[dict[str, Any]]) -> float:
+    """Tilt gravity by ``tilt`` degrees, take ``steps`` steps, record the hold in ``trace``;
+    returns the mean grain speed at its end."""
+    scene = stepper.scene
+    a = math.radians(tilt)
+    scene.gravity[:] = (G * math.sin(a), -G * math.cos(a))
+    before = surface_angle(scene, tilt)
+    try:
+        stepper.run(steps)
+    except SolverError as exc:
+        raise CocdError(f"avalanche, mu = {scene.mu:g}, tilt {tilt:g} deg: {exc}") from None
+    speed = float(np.mean(np.linalg.norm(scene.velocities[scene.free], axis=1)))
+    trace.append(
+        {
+            "mu": scene.mu,
+            "phase": phase,
+            "tilt_deg": tilt,
+            "t": scene.time,
+            "mean_speed": speed,
+            "surface_before_deg": before,
+            "surface_after_deg": surface_angle(scene, tilt),
+        }
+    )
+    return speed
+
+
+def _figure(path: Path, table: pd.DataFrame, trace: pd.DataFrame, threshold: float) -> Path:
+    plt = base._plt()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for mu, sub in trace.groupby("mu"):
+        for phase, style in (("up", "-o"), ("down", "--s")):
+            part = sub[sub.phase == phase]
+            axes[0].semilogy(
+                part.tilt_deg, np.maximum(part.mean_speed, 1e-12), style, ms=3,
+                label=f"mu {mu:g} {phase}",
+            )  # fmt: skip
+    axes[0].axhline(threshold, color="k", lw=0.8, ls=":")
+    axes[0].set_xlabel("tilt (deg)")
+    axes[0].set_ylabel("mean grain speed at the end of the hold (m/s)")
+    axes[0].legend(fontsize=7)
+    axes[0].grid(True, alpha=0.3)
+    axes[1].plot(table.mu, table.avalanche_deg, "o-", label="avalanche (surface angle)")
+    axes[1].plot(table.mu, table.stop_deg, "s-", label="stop (surface angle)")
+    axes[1].set_xlabel("mu")
+    axes[1].set_ylabel("angle (deg)")
+    axes[1].legend()
+    axes[1].grid(True, alpha=0.3)
+    return base._save(fig, path)
