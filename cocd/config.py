@@ -128,11 +128,17 @@ class RunConfig(BaseModel):
 
     _known_builder = field_validator("builder")(classmethod(lambda cls, v: known_builder(v)))
 
-    def stepper(self, scene: Scene) -> Stepper:
-        """A :class:`~cocd.stepper.Stepper` of ``scene`` with the ``[run]`` parameters."""
+    def stepper(self, scene: Scene, *, resumed: bool = False) -> Stepper:
+        """A :class:`~cocd.stepper.Stepper` of ``scene`` with the ``[run]`` parameters.
+
+        ``resumed``: ``scene`` is a state the run itself reached, whose small
+        overlaps are its solver's (within its tolerance): they are not checked
+        against the limit set for initial scenes.
+        """
         from cocd.stepper import Stepper
 
         rc = self.run
+        extra: dict[str, Any] = {"overlap_tol": math.inf} if resumed else {}
         return Stepper(
             scene,
             rc.dt,
@@ -144,6 +150,7 @@ class RunConfig(BaseModel):
             fallback=rc.fallback,
             residual_factor=rc.residual_factor,
             energy_factor=rc.energy_factor,
+            **extra,
         )
 
     def n_steps(self, start_time: float = 0.0) -> int:

@@ -94,7 +94,7 @@ def run(
         writer = RunWriter.create(path, scene, resolved, scene_file)
         records, previous, frames, start_step = [], None, 1, 0
     try:
-        stepper = config.stepper(scene)
+        stepper = config.stepper(scene, resumed=start_step > 0)
         stepper.restore(records, previous)
         total = config.n_steps()  # steps of the whole run, from t = 0
         begin = time.perf_counter()

@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 from cocd.cli import app
 from cocd.config import BUILDERS, ConfigError, build_scene, load_config, parse_config
+from cocd.errors import OverlapError
 from cocd.io.runfile import RunFile, RunFileError
 from cocd.runs import run
 
@@ -186,6 +187,25 @@ def test_resume_refuses_another_scene_or_time_step(tmp_path):
     # A larger iteration cap (after a step that hit the smaller one) is allowed.
     capped = {**base, "run": {"steps": 3, "max_iter": 500}}
     assert run(parse_config(capped), tmp_path, resume=True).steps == 3
+
+
+def test_resume_accepts_the_runs_own_small_overlaps(tmp_path):
+    """A state the run reached may overlap by its solver's tolerance (more than an
+    initial scene may): resuming from it is not refused."""
+    base = {"builder": "column_2d", "params": {"n_grains": 30}, "run": {"steps": 2}}
+    run(parse_config(base), tmp_path)
+    with h5py.File(tmp_path / "run.h5", "r+") as f:
+        x = f["frames/positions"][-1]
+        r = f["scene/radii"][:]
+        # Push grain 1 into grain 0 by 1e-4 of its radius (the initial limit is 1e-6).
+        d = x[1] - x[0]
+        gap = np.linalg.norm(d) - r[0] - r[1]
+        x[1] -= d / np.linalg.norm(d) * (gap + 1e-4 * min(r[0], r[1]))
+        f["frames/positions"][-1] = x
+    with RunFile(tmp_path / "run.h5") as rf, pytest.raises(OverlapError):
+        parse_config(base).stepper(rf.scene(-1))
+    longer = {**base, "run": {"steps": 4}}
+    assert run(parse_config(longer), tmp_path, resume=True).steps == 4
 
 
 def test_not_a_run_file_is_named(tmp_path):
