@@ -103,7 +103,13 @@ def nscd(
     nscd_tol: Annotated[float, typer.Option("--nscd-tol", help="Tolerance of nscd.")] = 1e-5,
     nscd_max_iter: Annotated[
         int, typer.Option("--nscd-max-iter", help="Sweeps allowed to nscd per step.")
-    ] = 20000,
+    ] = 100000,
+    nscd_symmetric: Annotated[
+        bool,
+        typer.Option(
+            "--nscd-symmetric/--nscd-forward", help="Alternate nscd's sweep direction or not."
+        ),
+    ] = True,
     fallback: Fallback = "clarabel",
     fresh: Fresh = False,
     out: Out = DEFAULT_OUT,
@@ -121,6 +127,7 @@ def nscd(
             tol=tol,
             nscd_tol=nscd_tol,
             nscd_max_iter=nscd_max_iter,
+            nscd_symmetric=nscd_symmetric,
             fallback=_names(fallback),
             out=out,
             fresh=fresh,
