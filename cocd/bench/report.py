@@ -179,10 +179,19 @@ def write_meta(
     return path
 
 
-def write_readme(out: Path, *, heading: str = "Results") -> Path:
-    """Rebuild ``<out>/README.md`` from every ``<out>/*.meta.json``, under ``# heading``."""
+def write_readme(out: Path, *, heading: str | None = None) -> Path:
+    """Rebuild ``<out>/README.md`` from every ``<out>/*.meta.json``, under ``# heading``
+    (default: the heading the README has, else "Results")."""
     if not out.is_dir():
         raise CocdError(f"results directory {out} does not exist")
+    if heading is None:
+        heading = "Results"
+        try:
+            first = (out / "README.md").read_text().splitlines()[0]
+        except (OSError, IndexError):
+            first = ""
+        if first.startswith("# "):
+            heading = first[2:].strip()
     metas = []
     for path in out.glob("*.meta.json"):
         try:
