@@ -161,6 +161,29 @@ def test_two_power_laws_are_recovered():
         fit_two_power_laws([1.0, 2.0], [1.0, -1.0])
 
 
+def test_a_tighter_tolerance_keeps_a_box_at_rest(tmp_path):
+    table = validate.stability(
+        solvers="apgd",
+        eps_list=[1e-1, 1e-5],
+        n=40,
+        dim=2,
+        t_end=3.0,
+        dt=1e-2,
+        time_limit=None,
+        run_budget=None,
+        isolate=False,
+        out=tmp_path,
+        progress=_quiet([]),
+    )
+    summary = pd.read_csv(tmp_path / "stability_summary.csv").set_index("eps")
+    # A loose answer injects motion; a tight one keeps the box still.
+    assert summary.loc[1e-5, "at_rest"] and not summary.loc[1e-1, "at_rest"]
+    assert summary.loc[1e-5, "max_energy_ratio"] < 1e-3 * summary.loc[1e-1, "max_energy_ratio"]
+    row = table.set_index("solver").loc["apgd"]
+    assert row.largest_eps_at_rest == 1e-5 and row.consistent
+    assert "stability_threshold" in (tmp_path / "README.md").read_text()
+
+
 def test_profile_error_and_thresholds():
     assert validate.profile_error([1.0, 2.0], [1.0, 2.0]) == 0.0
     assert validate.profile_error([0.0, 2.0], [1.0, 2.0]) == pytest.approx(1 / math.sqrt(5))

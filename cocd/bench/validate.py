@@ -743,6 +743,7 @@ def stability(
     threshold: float = 1e-6,
     time_limit: float | None = 30.0,
     run_budget: float | None = 60.0,
+    isolate: bool = True,
     out: Path = Path("results/validation"),
     progress: Callable[[str], Any] = print,
 ) -> pd.DataFrame:
@@ -767,6 +768,7 @@ def stability(
         out=out,
         progress=progress,
         run_budget=run_budget,
+        isolate=isolate,
     )
     table = stability_thresholds(summary)
     parts = []
