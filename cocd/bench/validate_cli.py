@@ -142,10 +142,10 @@ def erodible(
     layers: Annotated[
         str, typer.Option("--layers", help="Layer thicknesses in mean diameters (0: none).")
     ] = "0,3,5",
-    until: Annotated[float, typer.Option("--until", help="Simulated time (s).")] = 1.0,
+    until: Annotated[float, typer.Option("--until", help="Simulated time (s).")] = 2.0,
     dt: Annotated[float, typer.Option("--dt", help="Time step (s).")] = 1e-3,
     mu: Mu = 0.9,
-    bed_length: Annotated[float, typer.Option("--bed-length", help="Bed length (m).")] = 1.0,
+    bed_length: Annotated[float, typer.Option("--bed-length", help="Bed length (m).")] = 1.5,
     solver: Solver = "ipm",
     tol: Tol = 1e-6,
     fallback: Fallback = "clarabel",
