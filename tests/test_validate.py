@@ -49,12 +49,12 @@ def test_smaller_time_steps_converge(tmp_path):
     meta = json.loads((tmp_path / "timestep.meta.json").read_text())
     assert "Profile error of dt = 0.002 s" in meta["summary"]
     readme = (tmp_path / "README.md").read_text()
-    assert readme.startswith("# Validation against the seed paper")
+    assert readme.startswith("# Validation against the seed papers")
     assert "Time step convergence (Fig. 2)" in readme
     # `cocd bench readme` rebuilds it under the heading it has.
     from cocd.bench.report import write_readme
 
-    assert write_readme(tmp_path).read_text().startswith("# Validation against the seed paper")
+    assert write_readme(tmp_path).read_text().startswith("# Validation against the seed papers")
     # Run again: every run file is complete, so nothing is stepped, same table.
     again: list[str] = []
     table2 = validate.timestep(

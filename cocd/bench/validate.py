@@ -311,7 +311,7 @@ def _finish(
 ) -> None:
     files = report.write_table(out, name, table, title=title, intro=intro)
     report.write_meta(out, name, title=title, files=[*files, *figures], summary=summary)
-    readme = report.write_readme(out, heading="Validation against the seed paper")
+    readme = report.write_readme(out, heading="Validation against the seed papers")
     progress(f"{name}: wrote {', '.join(str(f) for f in [*files, *figures])}; {readme}")
 
 
@@ -798,7 +798,7 @@ def stability(
         files=files,
         summary=text,
     )
-    readme = report.write_readme(out, heading="Validation against the seed paper")
+    readme = report.write_readme(out, heading="Validation against the seed papers")
     progress(f"stability: wrote {', '.join(str(f) for f in files)}; {readme}")
     return table
 
