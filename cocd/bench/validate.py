@@ -63,8 +63,9 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-#: The cases of ``cocd validate``.
-CASES = ("timestep", "nscd", "erodible", "stability")
+#: The cases of ``cocd validate`` (``scaling``: :mod:`cocd.bench.runout`;
+#: ``avalanche``: :mod:`cocd.bench.avalanche`).
+CASES = ("timestep", "nscd", "erodible", "stability", "scaling", "avalanche")
 
 #: Seconds between two progress lines of one simulation.
 PROGRESS_S = 20.0
@@ -83,11 +84,11 @@ class CollapseSeries:
     """What is measured on one simulated collapse.
 
     ``times``: the saved frames' times (s); ``front``: the flow's front at
-    those times (:func:`cocd.measure.surface_front`), from the back wall (m); ``profiles``: the
-    height above the bed per bin at the asked times (rows), on ``x_edges``;
-    ``stats``: the run's per-step statistics; ``wall_s``: the wall time
-    recorded for the whole run (the solver's set-up, solve and detection
-    time summed over its steps).
+    those times (:func:`cocd.measure.surface_front`), from the back wall (m);
+    ``profiles``: the height above the bed per bin at the asked times (rows), on
+    ``x_edges``; ``stats``: the run's per-step statistics (:attr:`compute_s`
+    sums their detection, set-up and solve times); ``n_grains``: the column's
+    grains; ``d_mean``: their mean diameter (m).
     """
 
     label: str
