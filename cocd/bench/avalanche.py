@@ -145,13 +145,7 @@ def avalanche(
             "hysteresis_deg": avalanche_deg - trace[-1]["surface_after_deg"],
             "holds": len(trace),
             "steps": stepper.step_count,
-            "compute_s": float(
-                (
-                    stepper.stats().detect_time
-                    + stepper.stats().setup_time
-                    + stepper.stats().solve_time
-                ).sum()
-            ),
+            "compute_s": _compute_seconds(stepper.stats()),
         }
         progress(
             f"avalanche: mu = {mu:g}: avalanche at {avalanche_deg:.1f} deg, stops at tilt {tilt:g} "
@@ -196,6 +190,11 @@ def avalanche(
         progress,
     )
     return table
+
+
+def _compute_seconds(stats: pd.DataFrame) -> float:
+    """Detection, set-up and solve seconds summed over a stepper's steps."""
+    return float((stats.detect_time + stats.setup_time + stats.solve_time).sum())
 
 
 def _hold(stepper: Any, tilt: float, steps: int, phase: str, trace: list[dict[str, Any]]) -> float:
