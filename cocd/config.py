@@ -43,7 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from cocd import builders
 from cocd.errors import CocdError
-from cocd.scene import Scene
+from cocd.scene import DEFAULT_OVERLAP_TOL, Scene
 from cocd.validation import argument_checker
 
 if TYPE_CHECKING:
@@ -138,7 +138,6 @@ class RunConfig(BaseModel):
         from cocd.stepper import Stepper
 
         rc = self.run
-        extra: dict[str, Any] = {"overlap_tol": math.inf} if resumed else {}
         return Stepper(
             scene,
             rc.dt,
@@ -150,7 +149,7 @@ class RunConfig(BaseModel):
             fallback=rc.fallback,
             residual_factor=rc.residual_factor,
             energy_factor=rc.energy_factor,
-            **extra,
+            overlap_tol=math.inf if resumed else DEFAULT_OVERLAP_TOL,
         )
 
     def n_steps(self, start_time: float = 0.0) -> int:

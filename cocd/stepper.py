@@ -175,9 +175,11 @@ class Stepper:
         self.residual_factor = residual_factor
         self.energy_factor = energy_factor
         scene.check_overlaps(overlap_tol)
-        if external is not None and not callable(external):
-            resolve_loads(external, scene)  # a fixed load is checked once, here
         self.external = external
+        #: A fixed load, checked and converted once.
+        self._fixed_loads = (
+            resolve_loads(external, scene) if not callable(external) else (None, None)
+        )
         self.scene = scene
         self.dt = dt
         self.solver = solver
@@ -300,16 +302,15 @@ class Stepper:
     def _loads(self, k: int) -> tuple[FloatArray | None, FloatArray | None]:
         """The external loads of step ``k``, checked."""
         ext = self.external
-        if ext is None:
-            return None, None
+        if not callable(ext):
+            return self._fixed_loads
         where = f"external loads of step {k} (t = {self.scene.time:.6g} s)"
-        if callable(ext):
-            try:
-                ext = ext(self.scene, self.scene.time)
-            except ProblemError:
-                raise
-            except Exception as exc:
-                raise ProblemError(f"{where}: the load callable raised {exc!r}") from exc
+        try:
+            ext = ext(self.scene, self.scene.time)
+        except ProblemError:
+            raise
+        except Exception as exc:
+            raise ProblemError(f"{where}: the load callable raised {exc!r}") from exc
         return resolve_loads(ext, self.scene, where)
 
     def contact_impulses(self) -> tuple[FloatArray, FloatArray]:
