@@ -20,6 +20,10 @@ run's parameters::
     fallback = ["clarabel"]              # backends tried in turn when a step fails
     residual_factor = 1000               # a step fails above this multiple of tol
     energy_factor = 100                  # ... or when its kinetic energy blows up
+    d_max = 5e-4                         # detection floor (m); default half the mean radius
+    skin = 2                             # margin factor (default 2; 0 when d_max is given)
+    penetration_tol = 0.01               # end-of-step overlap allowed, in radii
+    on_penetration = "redo"              # or "raise", "warn", "record"
     [run.solver_options]                 # backend options, passed as they are
 
 Every key is checked (pydantic): an unknown key, a value of the wrong type or
@@ -35,7 +39,7 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import pydantic
 import tomllib
@@ -44,6 +48,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from cocd import builders
 from cocd.errors import CocdError
 from cocd.scene import DEFAULT_OVERLAP_TOL, Scene
+from cocd.stepper import DEFAULT_PENETRATION_TOL
 from cocd.validation import argument_checker
 
 if TYPE_CHECKING:
@@ -108,8 +113,18 @@ class RunSection(BaseModel):
     fallback: list[str] = Field(default_factory=list, description="backends tried on failure")
     residual_factor: float | None = Field(1e3, ge=1.0)
     energy_factor: float | None = Field(100.0, ge=1.0)
+    d_max: float | None = Field(
+        None, ge=0.0, description="floor of the detection threshold (m); default r_mean / 2"
+    )
+    skin: float | None = Field(
+        None, ge=0.0, description="margin factor; default 2 without d_max, 0 with it"
+    )
+    penetration_tol: float = Field(
+        DEFAULT_PENETRATION_TOL, ge=0.0, description="end-of-step overlap allowed (radii)"
+    )
+    on_penetration: Literal["redo", "raise", "warn", "record"] = "redo"
 
-    @field_validator("dt", "until", "tol")
+    @field_validator("dt", "until", "tol", "d_max", "skin", "penetration_tol")
     @classmethod
     def _finite(cls, value: float | None) -> float | None:
         if value is not None and not math.isfinite(value):
@@ -149,6 +164,10 @@ class RunConfig(BaseModel):
             fallback=rc.fallback,
             residual_factor=rc.residual_factor,
             energy_factor=rc.energy_factor,
+            d_max=rc.d_max,
+            skin=rc.skin,
+            penetration_tol=rc.penetration_tol,
+            on_penetration=rc.on_penetration,
             overlap_tol=math.inf if resumed else DEFAULT_OVERLAP_TOL,
         )
 

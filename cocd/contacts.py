@@ -1,9 +1,12 @@
-"""Contact detection, contact frames and the contact Jacobian.
+"""Contact detection, contact frames, the contact Jacobian and the end-of-step check.
 
 A potential contact is a pair (grain-grain, grain-fixed grain, grain-wall)
 whose gap ``D = |c_i - c_j| - r_i - r_j`` (or distance to a wall minus the
-radius) is below ``d_max`` (seed paper, section 3.3). Its frame is the normal
-``n`` pointing from j to i followed by the tangents (1 in 2D, 2 in 3D).
+radius) is below a threshold (seed paper, section 3.3): a floor ``d_max``
+plus a margin that follows the motion, as a Verlet skin does. A pair left out
+can close its gap within the step, unconstrained; :func:`penetration` measures,
+after the step, whether that happened. A contact's frame is the normal ``n``
+pointing from j to i followed by the tangents (1 in 2D, 2 in 3D).
 """
 
 from __future__ import annotations
@@ -19,10 +22,27 @@ from scipy.spatial import KDTree
 from cocd.errors import SceneError
 from cocd.scene import Scene
 
-__all__ = ["ContactSet", "contact_jacobian", "detect_contacts", "dof_layout"]
+__all__ = [
+    "D_MAX_FACTOR",
+    "SKIN_FACTOR",
+    "ContactSet",
+    "Penetration",
+    "contact_jacobian",
+    "default_d_max",
+    "detect_contacts",
+    "dof_layout",
+    "penetration",
+]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+#: Default floor of the detection threshold, relative to the mean radius.
+D_MAX_FACTOR = 0.5
+#: Default skin factor: a pair's margin is this many times the distance its
+#: free relative velocity closes in one step. Contacts change the velocities
+#: within the step, so the free motion alone would under-estimate the approach.
+SKIN_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -75,14 +95,43 @@ class ContactSet:
         return np.asarray(self.j < 0)
 
 
-def detect_contacts(scene: Scene, d_max: float | None = None) -> ContactSet:
-    """Find every potential contact with gap below ``d_max``.
+def default_d_max(scene: Scene) -> float:
+    """The default floor of the detection threshold: half the mean radius (m)."""
+    return D_MAX_FACTOR * float(scene.radii.mean())
+
+
+def detect_contacts(
+    scene: Scene,
+    d_max: float | None = None,
+    *,
+    velocities: FloatArray | None = None,
+    dt: float = 0.0,
+    skin: float = SKIN_FACTOR,
+    reach: FloatArray | None = None,
+) -> ContactSet:
+    """Find every potential contact: gap below ``d_max`` plus the pair's margin.
+
+    The margin follows the motion, as a Verlet skin does: with the step's free
+    velocities ``v`` (those of fixed grains are 0) it is ``skin * dt * |v_i - v_j|``
+    for a pair of grains (the most their gap can close if the pair kept its free
+    relative velocity, times ``skin``) and ``skin * dt * max(0, -v_i . n)`` for a
+    grain and a wall (its approach speed). ``reach`` adds a distance per grain
+    (a pair gets ``reach_i + reach_j``), e.g. to redo a step whose grains went
+    further than their margin.
 
     Parameters
     ----------
     scene : Scene
     d_max : float, optional
-        Gap threshold in metres; default half the mean radius.
+        Floor of the gap threshold in metres; default :func:`default_d_max`.
+    velocities : (n, d) array, optional
+        Free translational velocities; without them there is no margin.
+    dt : float
+        Time step (s).
+    skin : float
+        Margin factor (:data:`SKIN_FACTOR`); 0 for a fixed threshold.
+    reach : (n,) array, optional
+        Extra margin per grain (m).
 
     Returns
     -------
@@ -92,9 +141,19 @@ def detect_contacts(scene: Scene, d_max: float | None = None) -> ContactSet:
     x, r = scene.positions, scene.radii
     n, d = x.shape
     if d_max is None:
-        d_max = 0.5 * float(r.mean())
+        d_max = default_d_max(scene)
     if not (np.isfinite(d_max) and d_max >= 0.0):
         raise SceneError(f"d_max must be finite and >= 0, got {d_max}")
+    if not (np.isfinite(skin) and skin >= 0.0 and np.isfinite(dt) and dt >= 0.0):
+        raise SceneError(f"skin and dt must be finite and >= 0, got {skin} and {dt}")
+    v = None
+    if velocities is not None and skin * dt > 0.0:
+        v = np.where(scene.fixed[:, None], 0.0, np.asarray(velocities, dtype=np.float64))
+        if v.shape != (n, d) or not np.all(np.isfinite(v)):
+            raise SceneError(f"velocities must be finite with shape {(n, d)}, got {v.shape}")
+    extra = np.zeros(n) if reach is None else np.asarray(reach, dtype=np.float64)
+    if extra.shape != (n,) or not (np.all(np.isfinite(extra)) and np.all(extra >= 0.0)):
+        raise SceneError(f"reach must be finite, >= 0 and of shape ({n},)")
 
     i_parts: list[IntArray] = []
     j_parts: list[IntArray] = []
@@ -103,29 +162,33 @@ def detect_contacts(scene: Scene, d_max: float | None = None) -> ContactSet:
     mu_parts: list[FloatArray] = []
 
     if n > 1:
-        pairs = KDTree(x).query_pairs(2.0 * float(r.max()) + d_max, output_type="ndarray")
-        if pairs.size:
-            i, j = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
-            keep = ~(scene.fixed[i] & scene.fixed[j])
-            i, j = i[keep], j[keep]
-            delta = x[i] - x[j]
-            dist = np.linalg.norm(delta, axis=1)
-            gap = dist - r[i] - r[j]
-            close = gap < d_max
-            i, j, delta, dist, gap = i[close], j[close], delta[close], dist[close], gap[close]
-            if np.any(dist == 0.0):
-                a = int(np.flatnonzero(dist == 0.0)[0])
-                raise SceneError(f"grains {i[a]} and {j[a]} have the same centre")
-            i_parts.append(i)
-            j_parts.append(j)
-            gap_parts.append(gap)
-            normal_parts.append(delta / dist[:, None])
-            mu_parts.append(np.full(i.size, scene.mu))
+        i, j = _candidate_pairs(scene, float(d_max), v, skin * dt, extra)
+        keep = ~(scene.fixed[i] & scene.fixed[j])
+        i, j = i[keep], j[keep]
+        delta = x[i] - x[j]
+        dist = np.linalg.norm(delta, axis=1)
+        gap = dist - r[i] - r[j]
+        threshold = d_max + extra[i] + extra[j]
+        if v is not None:
+            threshold = threshold + skin * dt * np.linalg.norm(v[i] - v[j], axis=1)
+        close = gap < threshold
+        i, j, delta, dist, gap = i[close], j[close], delta[close], dist[close], gap[close]
+        if np.any(dist == 0.0):
+            a = int(np.flatnonzero(dist == 0.0)[0])
+            raise SceneError(f"grains {i[a]} and {j[a]} have the same centre")
+        i_parts.append(i)
+        j_parts.append(j)
+        gap_parts.append(gap)
+        normal_parts.append(delta / dist[:, None])
+        mu_parts.append(np.full(i.size, scene.mu))
 
     free = np.flatnonzero(scene.free).astype(np.int64)
     for k, wall in enumerate(scene.walls):
         gap = wall.gaps(x[free], r[free])
-        close = gap < d_max
+        threshold = d_max + extra[free]
+        if v is not None:
+            threshold = threshold + skin * dt * np.maximum(0.0, -(v[free] @ wall.normal))
+        close = gap < threshold
         m = int(close.sum())
         i_parts.append(free[close])
         j_parts.append(np.full(m, -1 - k, dtype=np.int64))
@@ -162,6 +225,230 @@ def detect_contacts(scene: Scene, d_max: float | None = None) -> ContactSet:
         keys=keys,
         d_max=float(d_max),
     )
+
+
+def _candidate_pairs(
+    scene: Scene, d_max: float, v: FloatArray | None, skin_dt: float, extra: FloatArray
+) -> tuple[IntArray, IntArray]:
+    """Grain pairs ``i < j`` that may be closer than their threshold (a superset).
+
+    A pair's margin is at most ``b_i + b_j`` with ``b = skin dt |v - v_ref| + reach``
+    (``v_ref``: the median free velocity), so one search with the common bound
+    of most grains finds their pairs, and the few grains faster than that are
+    searched around one by one, each within its own bound.
+    """
+    x, r = scene.positions, scene.radii
+    n = x.shape[0]
+    b = extra.copy()
+    if v is not None:
+        free = scene.free
+        ref = np.median(v[free], axis=0) if free.any() else np.zeros(x.shape[1])
+        b += skin_dt * np.linalg.norm(v - ref, axis=1)
+    r_max = float(r.max())
+    common = float(np.quantile(b, 0.95)) if b.any() else 0.0
+    tree = KDTree(x)
+    pairs = tree.query_pairs(2.0 * r_max + d_max + 2.0 * common, output_type="ndarray")
+    i, j = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
+    fast = np.flatnonzero(b > common)
+    if fast.size:
+        found = tree.query_ball_point(x[fast], r[fast] + r_max + d_max + 2.0 * b[fast])
+        counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=fast.size)
+        if counts.sum():
+            others = np.concatenate([np.asarray(f, dtype=np.int64) for f in found])
+            centre = np.repeat(fast, counts)
+            lo, hi = np.minimum(centre, others), np.maximum(centre, others)
+            keep = lo != hi
+            keys = np.unique(
+                np.concatenate([i * np.int64(n) + j, lo[keep] * np.int64(n) + hi[keep]])
+            )
+            i, j = keys // n, keys % n
+    return i, j
+
+
+@dataclass(frozen=True)
+class Penetration:
+    """How far grains overlap at the end of a step (:func:`penetration`).
+
+    Attributes
+    ----------
+    depth : float
+        Largest overlap, relative to the smaller radius of the pair (a grain's
+        own radius against a wall); 0 when nothing overlaps.
+    depth_m : float
+        That overlap in metres.
+    i, j : int
+        The deepest pair (``j = -1 - k`` for wall ``k``); -1, -1 when none.
+    potential : bool
+        Whether that pair was a potential contact of the step (then the
+        backend's answer let it overlap, not the margin).
+    missed : int
+        Number of pairs that overlap without having been potential contacts.
+    missed_depth : float
+        Largest relative overlap among those (0 when none).
+    missed_i, missed_j : (m,) int arrays
+        Those pairs.
+    missed_gap : (m,) float array
+        Their gaps at the start of the step (m): how far they had to close.
+    """
+
+    depth: float
+    depth_m: float
+    i: int
+    j: int
+    potential: bool
+    missed: int
+    missed_depth: float
+    missed_i: IntArray
+    missed_j: IntArray
+    missed_gap: FloatArray
+
+    def describe(self, scene: Scene) -> str:
+        """The deepest pair in words: ``grains 3 and 7 overlap by 1.2e-4 m (0.12 r)``."""
+        if self.depth <= 0.0:
+            return "no grains overlap"
+        if self.j >= 0:
+            who = f"grains {self.i} and {self.j} overlap"
+        else:
+            who = f"grain {self.i} penetrates wall {-1 - self.j}"
+        kind = "a potential contact" if self.potential else "not a potential contact"
+        return f"{who} by {self.depth_m:.3g} m ({self.depth:.3g} of the smaller radius; {kind})"
+
+
+def penetration(scene: Scene, contacts: ContactSet, start: FloatArray) -> Penetration:
+    """Overlaps at the end of a step, and pairs that went through each other in it.
+
+    Parameters
+    ----------
+    scene : Scene
+        At the end of the step.
+    contacts : ContactSet
+        The step's potential contacts (detected at the start).
+    start : (n, d) array
+        Grain centres at the start of the step.
+
+    Notes
+    -----
+    Potential contacts, and grains against walls (planes: a grain that went
+    through one is behind it), are checked at the end of the step. A pair that
+    was not a potential contact had a gap of at least ``contacts.d_max`` at the
+    start, so it can have touched only if the two grains' displacements differ
+    by more than that: only the neighbourhoods of grains displaced by more than
+    ``d_max / 2`` from the median displacement are searched. Centres move in a
+    straight line within a step, so for those pairs the depth is the deepest
+    overlap along the way: a grain that passed through another is found even
+    if they are apart again at the end.
+    """
+    x, r = scene.positions, scene.radii
+    n = x.shape[0]
+    n_walls = len(scene.walls)
+    free = scene.free
+
+    # (i, j, gap) of every pair checked: grain pairs and walls alike.
+    ci, cj = contacts.i, contacts.j
+    grain = cj >= 0
+    i_parts = [ci[grain]]
+    j_parts = [cj[grain]]
+    gap_parts = [np.linalg.norm(x[ci[grain]] - x[cj[grain]], axis=1) - r[ci[grain]] - r[cj[grain]]]
+    idx = np.flatnonzero(free).astype(np.int64)
+    for k, wall in enumerate(scene.walls):
+        i_parts.append(idx)
+        j_parts.append(np.full(idx.size, -1 - k, dtype=np.int64))
+        gap_parts.append(wall.gaps(x[idx], r[idx]))
+    if n > 1:
+        pi, pj = _passing_pairs(scene, start, contacts.d_max)
+        # Potential contacts are judged at the end of the step only (above).
+        other = ~_is_member(_pair_keys(pi, pj, n, n_walls), contacts.keys)
+        pi, pj = pi[other], pj[other]
+        i_parts.append(pi)
+        j_parts.append(pj)
+        gap_parts.append(_swept_gap(start[pi] - start[pj], x[pi] - x[pj]) - r[pi] - r[pj])
+    i = np.concatenate(i_parts)
+    j = np.concatenate(j_parts)
+    gap = np.concatenate(gap_parts)
+    over = gap < 0.0
+    i, j, gap = i[over], j[over], gap[over]
+    potential = _is_member(_pair_keys(i, j, n, n_walls), contacts.keys)
+    smaller = np.where(j >= 0, np.minimum(r[i], r[np.maximum(j, 0)]), r[i])
+    rel = -gap / smaller
+    missed = ~potential
+    mi, mj = i[missed], j[missed]
+    start_gap = np.empty(mi.size)
+    walls = mj < 0
+    pair = ~walls
+    start_gap[pair] = (
+        np.linalg.norm(start[mi[pair]] - start[mj[pair]], axis=1) - r[mi[pair]] - r[mj[pair]]
+    )
+    for w in np.flatnonzero(walls):
+        wall = scene.walls[-1 - int(mj[w])]
+        start_gap[w] = float(wall.gaps(start[mi[w]][None, :], r[mi[w]][None])[0])
+    if rel.size == 0:
+        return Penetration(0.0, 0.0, -1, -1, False, 0, 0.0, mi, mj, start_gap)
+    a = int(np.argmax(rel))
+    return Penetration(
+        depth=float(rel[a]),
+        depth_m=float(-gap[a]),
+        i=int(i[a]),
+        j=int(j[a]),
+        potential=bool(potential[a]),
+        missed=int(missed.sum()),
+        missed_depth=float(rel[missed].max()) if missed.any() else 0.0,
+        missed_i=mi,
+        missed_j=mj,
+        missed_gap=start_gap,
+    )
+
+
+def _passing_pairs(scene: Scene, start: FloatArray, d_max: float) -> tuple[IntArray, IntArray]:
+    """Grain pairs ``i < j`` whose relative displacement in the step may have brought
+    them closer than contact although their gap was at least ``d_max`` (a superset).
+
+    With ``b`` the distance of each grain's displacement from the median one,
+    a pair's relative displacement is at most ``b_i + b_j``: only grains with
+    ``b > d_max / 2`` can be in such a pair, and each is searched around within
+    ``r_i + r_max + 2 b_i`` (the pairs whose other grain moved more are found
+    from that one).
+    """
+    x, r = scene.positions, scene.radii
+    free = scene.free
+    disp = x - start
+    ref = np.median(disp[free], axis=0) if free.any() else np.zeros(x.shape[1])
+    b = np.linalg.norm(np.where(free[:, None], disp, 0.0) - ref, axis=1)
+    fast = np.flatnonzero(b > 0.5 * d_max)
+    if fast.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    tree = KDTree(start)
+    found = tree.query_ball_point(start[fast], r[fast] + float(r.max()) + 2.0 * b[fast])
+    counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=fast.size)
+    if counts.sum() == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    others = np.concatenate([np.asarray(f, dtype=np.int64) for f in found])
+    centre = np.repeat(fast, counts)
+    lo, hi = np.minimum(centre, others), np.maximum(centre, others)
+    keep = (lo != hi) & ~(scene.fixed[lo] & scene.fixed[hi])
+    n = np.int64(x.shape[0])
+    keys = np.unique(lo[keep] * n + hi[keep])
+    return keys // n, keys % n
+
+
+def _swept_gap(before: FloatArray, after: FloatArray) -> FloatArray:
+    """Smallest distance between two centres moving in straight lines, shape ``(m,)``.
+
+    ``before`` and ``after`` are the relative positions ``c_i - c_j`` at the start
+    and the end of the step, shape ``(m, d)``.
+    """
+    e = after - before
+    ee = np.einsum("ij,ij->i", e, e)
+    t = np.where(ee > 0.0, -np.einsum("ij,ij->i", before, e) / np.where(ee > 0.0, ee, 1.0), 0.0)
+    t = np.clip(t, 0.0, 1.0)
+    return np.asarray(np.linalg.norm(before + t[:, None] * e, axis=1))
+
+
+def _is_member(keys: IntArray, sorted_keys: IntArray) -> NDArray[np.bool_]:
+    """Whether each key is in ``sorted_keys`` (ascending)."""
+    if sorted_keys.size == 0:
+        return np.zeros(keys.size, dtype=bool)
+    pos = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
+    return np.asarray(sorted_keys[pos] == keys)
 
 
 def dof_layout(scene: Scene, frictionless: bool) -> tuple[IntArray, int]:

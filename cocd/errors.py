@@ -10,6 +10,8 @@ from __future__ import annotations
 __all__ = [
     "CocdError",
     "OverlapError",
+    "PenetrationError",
+    "PenetrationWarning",
     "ProblemError",
     "ProblemFileError",
     "ResourceError",
@@ -51,3 +53,13 @@ class SolverNotFound(CocdError, LookupError):
 
 class SolverError(CocdError, RuntimeError):
     """A backend failed to answer a problem it accepted."""
+
+
+class PenetrationError(SolverError):
+    """Grains overlap at the end of a step by more than the tolerance: the message
+    names the step, the pair and the depth."""
+
+
+class PenetrationWarning(UserWarning):
+    """Grains overlapped at the end of a step by more than the tolerance, and the
+    run went on (``on_penetration="warn"``)."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -18,9 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 import solvers
-from cocd.contacts import ContactSet, detect_contacts
+from cocd.contacts import SKIN_FACTOR, ContactSet, Penetration, detect_contacts, penetration
 from cocd.coupling import grain_impulses, resolve_loads
-from cocd.errors import ProblemError, SolverError
+from cocd.errors import PenetrationError, PenetrationWarning, ProblemError, SolverError
 from cocd.measure import kinetic_energy, potential_energy
 from cocd.problem import ConicProblem, assemble, scatter_velocity
 from cocd.residuals import Residuals, residuals
@@ -31,9 +32,26 @@ if TYPE_CHECKING:
 
     from cocd.coupling import ExternalLoads
 
-__all__ = ["StepRecord", "Stepper", "match_impulses"]
+__all__ = [
+    "DEFAULT_PENETRATION_TOL",
+    "PENETRATION_POLICIES",
+    "StepRecord",
+    "Stepper",
+    "match_impulses",
+]
 
 FloatArray = NDArray[np.float64]
+
+#: Largest overlap allowed at the end of a step, relative to the smaller radius
+#: of the pair (1 %); deeper is a penetration, handled by the stepper's policy.
+DEFAULT_PENETRATION_TOL = 1e-2
+#: What a step whose grains overlap by more than the tolerance does:
+#: ``redo`` it with a larger margin for the grains that went through (then
+#: ``raise`` if that is not enough, or if the overlapping pair was a potential
+#: contact: the backend's answer let it overlap), ``raise`` at once, ``warn``
+#: and go on, or only ``record`` it in the statistics (for studies of loose
+#: tolerances).
+PENETRATION_POLICIES = ("redo", "raise", "warn", "record")
 
 
 @dataclass(frozen=True)
@@ -60,6 +78,14 @@ class StepRecord:
     #: Backends of the fallback chain that failed this step, with the reason
     #: ("" when the first one answered).
     failures: str = ""
+    #: Largest overlap at the end of the step (grains and walls), relative to the
+    #: smaller radius of the pair (NaN: not measured, in run files written before).
+    penetration: float = float("nan")
+    #: Pairs overlapping at the end of the step that were not potential contacts.
+    missed_contacts: int = 0
+    #: Times the step was redone with a larger margin, and the seconds those took.
+    redos: int = 0
+    redo_time: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -68,11 +94,13 @@ class StepRecord:
 class Stepper:
     """Advance a scene with one convex contact problem per step.
 
-    At each step: detect potential contacts (gap below ``d_max``), assemble the
-    :class:`ConicProblem`, solve it with the chosen backend, set the velocity to
-    ``u = U + M^-1 H'p`` (the velocity the impulses imply, so that momentum is
-    conserved to rounding whatever the backend), then move the centres by
-    ``dt u`` (symplectic Euler).
+    At each step: detect potential contacts (gap below ``d_max`` plus a margin
+    that follows the free velocities), assemble the :class:`ConicProblem`, solve
+    it with the chosen backend, set the velocity to ``u = U + M^-1 H'p`` (the
+    velocity the impulses imply, so that momentum is conserved to rounding
+    whatever the backend), move the centres by ``dt u`` (symplectic Euler), then
+    measure the overlaps at the end of the step (:func:`~cocd.contacts.penetration`)
+    and apply the ``on_penetration`` policy.
 
     Parameters
     ----------
@@ -85,7 +113,28 @@ class Stepper:
     tol : float
         Backend tolerance.
     d_max : float, optional
-        Contact detection threshold; default half the mean radius.
+        Floor of the contact detection threshold (m); default half the mean
+        radius. A pair is a potential contact when its gap is below ``d_max``
+        plus a margin that follows the motion (:func:`~cocd.contacts.detect_contacts`):
+        ``skin`` times the distance its free relative velocity closes in ``dt``.
+    skin : float, optional
+        Margin factor; default :data:`~cocd.contacts.SKIN_FACTOR` when ``d_max``
+        is not given, and 0 when it is (a user's ``d_max`` is the threshold; the
+        end-of-step check still applies).
+    penetration_tol : float
+        Largest overlap allowed at the end of a step, relative to the smaller
+        radius of the pair (default :data:`DEFAULT_PENETRATION_TOL`, 1 %). Every
+        step measures it (``penetration``, ``missed_contacts`` in the statistics).
+    on_penetration : {"redo", "raise", "warn", "record"}
+        What a step whose grains overlap by more does. ``redo`` (default): take
+        the step again with the margin of the grains that went through widened
+        to their gap (at most ``max_redos`` times); if grains still overlap, or
+        the pair was a potential contact (the backend's answer let it overlap:
+        tighten ``tol``), raise. ``raise``: :class:`PenetrationError` naming the
+        step, the pair and the depth. ``warn``: a :class:`PenetrationWarning`, and
+        the run goes on. ``record``: only the statistics say so.
+    max_redos : int
+        Redos allowed per step under ``redo``.
     warm_start : bool
         Start backends that accept one from the previous step's impulses,
         matched by contact pair.
@@ -133,6 +182,10 @@ class Stepper:
         solver: str = "clarabel",
         tol: float = 1e-8,
         d_max: float | None = None,
+        skin: float | None = None,
+        penetration_tol: float = DEFAULT_PENETRATION_TOL,
+        on_penetration: str = "redo",
+        max_redos: int = 3,
         warm_start: bool = True,
         max_iter: int | None = None,
         time_limit: float | None = None,
@@ -184,7 +237,31 @@ class Stepper:
         self.dt = dt
         self.solver = solver
         self.tol = tol
+        if d_max is not None:
+            try:
+                d_max = float(d_max)
+            except (TypeError, ValueError):
+                raise ProblemError(f"d_max must be a number, got {d_max!r}") from None
+            if not (np.isfinite(d_max) and d_max >= 0.0):
+                raise ProblemError(f"d_max must be finite and >= 0, got {d_max}")
+        skin = (SKIN_FACTOR if d_max is None else 0.0) if skin is None else skin
+        for label, value in (("skin", skin), ("penetration_tol", penetration_tol)):
+            if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0.0):
+                raise ProblemError(f"{label} must be a finite number >= 0, got {value!r}")
+        if on_penetration not in PENETRATION_POLICIES:
+            raise ProblemError(
+                f"on_penetration must be one of {', '.join(PENETRATION_POLICIES)}, "
+                f"got {on_penetration!r}"
+            )
+        if not (isinstance(max_redos, int) and max_redos >= 0):
+            raise ProblemError(f"max_redos must be an integer >= 0, got {max_redos!r}")
         self.d_max = d_max
+        self.skin = float(skin)
+        self.penetration_tol = float(penetration_tol)
+        self.on_penetration = on_penetration
+        self.max_redos = max_redos
+        #: The last step's end-of-step overlaps.
+        self.penetration: Penetration | None = None
         self.warm_start = warm_start and self.info.warm_start
         self.max_iter = max_iter
         self.time_limit = time_limit
@@ -223,8 +300,110 @@ class Stepper:
         scene = self.scene
         k = self.step_count + 1
         forces, torques = self._loads(k)
+        saved = (scene.positions.copy(), scene.velocities.copy(), scene.angular_velocities.copy())
+        t_start = scene.time
+        free_velocity = self._free_velocity(forces)
+        energy_before = kinetic_energy(scene)
+        reach: FloatArray | None = None
+        redos, redo_time = 0, 0.0
+        while True:
+            attempt = time.perf_counter()
+            contacts, problem, solution, answered, failures, res, detect_time = self._solve(
+                k, forces, torques, free_velocity, reach, energy_before
+            )
+            check = time.perf_counter()
+            pen = penetration(scene, contacts, saved[0])
+            detect_time += time.perf_counter() - check
+            if pen.depth <= self.penetration_tol or self.on_penetration == "record":
+                break
+            where = f"step {k} (t = {scene.time:.6g} s, {problem.nc} contacts)"
+            redo = (
+                self.on_penetration == "redo"
+                and pen.missed_depth > self.penetration_tol
+                and redos < self.max_redos
+            )
+            if redo:
+                # Widen the margin of the grains that went through to the gaps they
+                # closed: those pairs, and their grains' other neighbours as near,
+                # are potential contacts of the step taken again.
+                reach = np.zeros(scene.n_grains) if reach is None else reach
+                for i, j, g in zip(pen.missed_i, pen.missed_j, pen.missed_gap, strict=True):
+                    reach[i] = max(reach[i], g)
+                    if j >= 0:
+                        reach[j] = max(reach[j], g)
+                self._restore(saved, t_start)
+                redos += 1
+                redo_time += time.perf_counter() - attempt
+                continue
+            message = f"{where}: {pen.describe(scene)}, above {self.penetration_tol:g}"
+            if self.on_penetration == "warn":
+                warnings.warn(message, PenetrationWarning, stacklevel=2)
+                break
+            self._restore(saved, t_start)
+            if pen.potential:
+                message += (
+                    f": the answer of {answered} (tol {self.tol:g}) lets it overlap; tighten tol"
+                )
+            elif redos:
+                message += f" after {redos} redos with a wider margin"
+            else:
+                message += (
+                    f": its gap was above d_max ({contacts.d_max:.3g} m) plus its margin; "
+                    "widen d_max or skin, or let the step be redone (on_penetration='redo')"
+                )
+            raise PenetrationError(message)
+
+        record = StepRecord(
+            step=k,
+            t=scene.time,
+            n=scene.n_free,
+            nc=problem.nc,
+            solver=answered,
+            status=solution.status.value,
+            iterations=solution.iterations,
+            detect_time=detect_time,
+            setup_time=solution.setup_time,
+            solve_time=solution.solve_time,
+            ccp_residual=res.ccp,
+            coulomb_residual=res.coulomb,
+            dynamics_residual=res.dynamics,
+            cone_violation_max=res.cone_violation_max,
+            complementarity_max=res.complementarity_max,
+            kinetic_energy=kinetic_energy(scene),
+            potential_energy=potential_energy(scene),
+            failures="; ".join(failures),
+            penetration=pen.depth,
+            missed_contacts=pen.missed,
+            redos=redos,
+            redo_time=redo_time,
+        )
+        self.contacts, self.problem, self.solution = contacts, problem, solution
+        self.penetration = pen
+        self.previous = (contacts.keys, solution.p)
+        self.records.append(record)
+        if self.fclib_dir is not None and (self.fclib_steps is None or k in self.fclib_steps):
+            self.export_step(self.fclib_dir / f"step_{k:06d}.hdf5")
+        return record
+
+    def _solve(
+        self,
+        k: int,
+        forces: FloatArray | None,
+        torques: FloatArray | None,
+        free_velocity: FloatArray,
+        reach: FloatArray | None,
+        energy_before: float,
+    ) -> tuple[ContactSet, ConicProblem, solvers.Solution, str, list[str], Residuals, float]:
+        """Detect, assemble, solve (along the fallback chain) and move the grains.
+
+        Returns the contacts, the problem, the accepted answer, the backend that
+        gave it, the failures before it, its residuals and the detection time.
+        """
+        scene = self.scene
         start = time.perf_counter()
-        contacts = detect_contacts(scene, self.d_max)
+        contacts = detect_contacts(
+            scene, self.d_max, velocities=free_velocity, dt=self.dt, skin=self.skin, reach=reach
+        )
         problem = assemble(scene, contacts, self.dt, forces=forces, torques=torques)
         detect_time = time.perf_counter() - start
 
@@ -234,7 +413,6 @@ class Stepper:
             if p0.shape[1] != problem.contact_dim:
                 p0 = None
         where = f"step {k} (t = {scene.time + self.dt:.6g} s, {problem.nc} contacts)"
-        energy_before = kinetic_energy(scene)
         failures: list[str] = []
         for name in (self.solver, *self.fallback):
             info = solvers.get(name)
@@ -260,7 +438,6 @@ class Stepper:
         else:
             raise SolverError(f"{where}: " + "; ".join(failures))
         assert res is not None
-        answered = name
 
         scatter_velocity(scene, problem.velocity(solution.p), problem.contact_dim == 1)
         free = scene.free
@@ -271,33 +448,23 @@ class Stepper:
             )
         scene.positions[free] += self.dt * scene.velocities[free]
         scene.time += self.dt
+        return contacts, problem, solution, name, failures, res, detect_time
 
-        record = StepRecord(
-            step=k,
-            t=scene.time,
-            n=scene.n_free,
-            nc=problem.nc,
-            solver=answered,
-            status=solution.status.value,
-            iterations=solution.iterations,
-            detect_time=detect_time,
-            setup_time=solution.setup_time,
-            solve_time=solution.solve_time,
-            ccp_residual=res.ccp,
-            coulomb_residual=res.coulomb,
-            dynamics_residual=res.dynamics,
-            cone_violation_max=res.cone_violation_max,
-            complementarity_max=res.complementarity_max,
-            kinetic_energy=kinetic_energy(scene),
-            potential_energy=potential_energy(scene),
-            failures="; ".join(failures),
-        )
-        self.contacts, self.problem, self.solution = contacts, problem, solution
-        self.previous = (contacts.keys, solution.p)
-        self.records.append(record)
-        if self.fclib_dir is not None and (self.fclib_steps is None or k in self.fclib_steps):
-            self.export_step(self.fclib_dir / f"step_{k:06d}.hdf5")
-        return record
+    def _free_velocity(self, forces: FloatArray | None) -> FloatArray:
+        """Translational free velocities ``v + dt (g + F / m)``, shape ``(n, d)``."""
+        scene = self.scene
+        accel = np.broadcast_to(scene.gravity, scene.velocities.shape)
+        if forces is not None:
+            accel = accel + forces / scene.masses[:, None]
+        return np.asarray(scene.velocities + self.dt * accel)
+
+    def _restore(self, saved: tuple[FloatArray, FloatArray, FloatArray], t: float) -> None:
+        """Put the scene back in the state it had at the start of the step."""
+        scene = self.scene
+        scene.positions[...] = saved[0]
+        scene.velocities[...] = saved[1]
+        scene.angular_velocities[...] = saved[2]
+        scene.time = t
 
     def _loads(self, k: int) -> tuple[FloatArray | None, FloatArray | None]:
         """The external loads of step ``k``, checked."""

@@ -145,6 +145,7 @@ def avalanche(
             "hysteresis_deg": avalanche_deg - trace[-1]["surface_after_deg"],
             "holds": len(trace),
             "steps": stepper.step_count,
+            "penetration_max": float(stepper.stats().penetration.max()),
             "compute_s": _compute_seconds(stepper.stats()),
         }
         progress(

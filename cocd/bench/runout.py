@@ -170,6 +170,7 @@ def scaling(
                 "Hf_over_H0": Hf / H0,
                 "front_speed_end_d_per_s": speed / s.d_mean,
                 "reached_end": bool(np.max(s.front) >= bed - 2.0 * s.d_mean),
+                "penetration_max": s.penetration_max,
                 "compute_s": s.compute_s,
             }
         )

@@ -111,6 +111,13 @@ class CollapseSeries:
         return len(self.stats)
 
     @property
+    def penetration_max(self) -> float:
+        """Largest end-of-step overlap of the run, relative to the smaller radius (NaN: a
+        run file written before overlaps were measured)."""
+        values = self.stats.penetration.to_numpy(dtype=float)
+        return float(np.max(values)) if values.size and np.all(np.isfinite(values)) else np.nan
+
+    @property
     def compute_s(self) -> float:
         """Seconds of detection, set-up and solving summed over the steps."""
         s = self.stats
@@ -387,6 +394,7 @@ def timestep(
                     "front_ref_m": float(np.interp(t, ref.times, ref.front)),
                     "steps": s.steps,
                     "mean_nc": float(s.stats.nc.mean()),
+                    "penetration_max": s.penetration_max,
                     "compute_s": s.compute_s,
                 }
             )
@@ -553,6 +561,7 @@ def nscd(
     table = pd.DataFrame(rows)
     for s, name in ((cocd_run, "cocd"), (nscd_run, "nscd")):
         table[f"compute_s_{name}"] = s.compute_s
+        table[f"penetration_max_{name}"] = s.penetration_max
         table[f"max_residual_{name}"] = float(
             (s.stats.ccp_residual if name == "cocd" else s.stats.coulomb_residual).max()
         )
@@ -682,6 +691,7 @@ def erodible(
                     "reached_end": bool(np.max(s.front) >= bed_length - 2.0 * s.d_mean),
                     "n_layer": int(s.stats.n.iloc[0]) - s.n_grains,
                     "steps": s.steps,
+                    "penetration_max": s.penetration_max,
                     "compute_s": s.compute_s,
                 }
             )

@@ -31,6 +31,7 @@ that replaces it.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 from collections.abc import Iterator
@@ -56,7 +57,13 @@ IntArray = NDArray[np.int64]
 
 _STAT_FIELDS = list(StepRecord.__dataclass_fields__)
 _STAT_STRINGS = {"solver", "status", "failures"}
-_STAT_INTS = {"step", "n", "nc", "iterations"}
+_STAT_INTS = {"step", "n", "nc", "iterations", "missed_contacts", "redos"}
+#: Defaults of the statistics added after the first run files were written.
+_STAT_DEFAULTS = {
+    name: f.default
+    for name, f in StepRecord.__dataclass_fields__.items()
+    if f.default is not dataclasses.MISSING
+}
 _CONTACT_FIELDS = ("i", "j", "keys", "gap", "normal", "impulse")
 
 
@@ -272,7 +279,11 @@ def _copy_prefix(source: RunFile, f: h5py.File) -> None:
     keep = int(np.searchsorted(steps, last_step, side="right"))
     f.create_group("stats")
     for name in _STAT_FIELDS:
-        _copy_rows(src[f"stats/{name}"], f["stats"], name, keep)
+        if name in src["stats"]:
+            _copy_rows(src[f"stats/{name}"], f["stats"], name, keep)
+        else:  # a statistic files written before it existed lack: its default
+            values = np.full(keep, _STAT_DEFAULTS[name])
+            f["stats"].create_dataset(name, data=values, maxshape=(None,), chunks=(1024,))
 
 
 def _copy_rows(ds: h5py.Dataset, group: h5py.Group, name: str, rows: int) -> None:
@@ -432,9 +443,12 @@ class RunFile:
         import pandas as pd
 
         st = self.f["stats"]
-        n = min(st[name].shape[0] for name in _STAT_FIELDS)
+        n = min(st[name].shape[0] for name in _STAT_FIELDS if name in st)
         data = {}
         for name in _STAT_FIELDS:
+            if name not in st:  # written before this statistic existed
+                data[name] = np.full(n, _STAT_DEFAULTS[name])
+                continue
             values = st[name][:n]
             if name in _STAT_STRINGS:
                 values = [v.decode() if isinstance(v, bytes) else str(v) for v in values]
