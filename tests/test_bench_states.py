@@ -42,3 +42,34 @@ def test_prep_tol_solves_only_the_steps_before_t_start(cache, monkeypatch):
     record_steps("st", make, dt=1e-3, t_start=3e-3, n_steps=2, tol=1e-8)
     assert asked == [1e-8] * 5
     assert len(list((cache / "bench").glob("st-*.pkl"))) == 2
+
+
+@pytest.mark.parametrize("stop_at", ["preparing, step 4/", "recording, step 1/"])
+def test_an_interrupted_recording_continues_from_its_checkpoint(cache, stop_at):
+    """Killed while preparing or recording, the next call continues from the last
+    checkpoint and records the problems an uninterrupted recording does."""
+    make = partial(stack, 4, dim=2)
+    kwargs = dict(dt=1e-3, t_start=6e-3, n_steps=3, solver="pgs", tol=1e-10)
+    whole = record_steps("whole", make, cache=False, **kwargs)
+
+    lines: list[str] = []
+
+    def interrupt(line: str) -> None:
+        lines.append(line)
+        if stop_at in line:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        record_steps("cut", make, progress=interrupt, checkpoint_s=0.0, **kwargs)
+    assert list((cache / "bench").glob("cut-*.partial.pkl"))
+    lines.clear()
+    seq = record_steps("cut", make, progress=lines.append, checkpoint_s=0.0, **kwargs)
+    assert "continuing from the checkpoint" in lines[0]
+    assert not any("preparing, step 1/" in line for line in lines)
+    assert seq.t_start == pytest.approx(whole.t_start)
+    assert len(seq.problems) == 3
+    for a, b in zip(seq.impulses, whole.impulses, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    for a, b in zip(seq.warm_starts[1:], whole.warm_starts[1:], strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert not list((cache / "bench").glob("cut-*.partial.pkl"))  # removed when done

@@ -49,6 +49,9 @@ def test_table1_tiny_run(tmp_path, cache):
     assert (ours[ours.solver == "scs-dual"].warm == "yes").all()
     assert (ours.iterations > 0).all() and (ours.time_per_step_s > 0).all()
     assert (ours.Nc > 0).all()
+    # Detected with the seed's threshold; the count per grain is beside the seed's.
+    assert (ours.d_max_r == table1.D_SEED_2D).all()
+    assert ours.Nc_per_grain.to_numpy() == pytest.approx((ours.Nc / ours.N).to_numpy())
 
     seed = df[df.source == table1.SEED]
     assert len(seed) == 4
@@ -56,6 +59,7 @@ def test_table1_tiny_run(tmp_path, cache):
     row = seed[(seed.dim == 3) & (seed.eps == 1e-5)].iloc[0]
     assert row.iterations == 11 and row.time_per_step_s == pytest.approx(269.9)
     assert seed.ccp_residual.isna().all()
+    assert seed[seed.dim == 3].Nc_per_grain.iloc[0] == pytest.approx(829505 / 122932)
 
     md = (out / "table1.md").read_text()
     assert "N scaled by 0.001 for this 2-core machine" in md
@@ -216,8 +220,9 @@ def test_table1_3d_time_limit_skips_tighter_eps(tmp_path, cache, monkeypatch):
     # A fake trajectory and worker: the 3D bookkeeping without a 3D simulation.
     problem = runner.warmup_problem(3, 1e-2)
 
-    def fake_record(label, make, *, dt, t_start, n_steps, solver, tol, progress, prep_tol):
+    def fake_record(label, make, *, dt, t_start, n_steps, solver, tol, progress, prep_tol, d_max):
         assert (dt, t_start, solver, tol, prep_tol) == (1e-2, 1.0, "clarabel-dual", 1e-8, 1e-6)
+        assert d_max == pytest.approx(table1.D_SEED_3D * make().radii.mean())
         return StepSequence(
             label=label, dim=3, n_free=3, dt=dt, t_start=t_start,
             problems=[problem] * n_steps, impulses=[None] * n_steps,

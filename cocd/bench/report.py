@@ -38,6 +38,8 @@ __all__ = [
 #: Sections of the README, in this order; other names follow alphabetically.
 ORDER = [
     "table1",
+    "seed_contacts",
+    "margin",
     "scaling",
     "stability",
     "precision",

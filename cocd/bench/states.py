@@ -8,7 +8,10 @@ that no backend's own trajectory changes what the others are asked.
 
 Recorded sequences are pickled in ``$COCD_CACHE/bench`` (default
 ``~/.cache/cocd/bench``), keyed by a hash of the initial scene and every
-parameter; an unreadable or mismatched file is rebuilt, never trusted.
+parameter; an unreadable or mismatched file is rebuilt, never trusted. A long
+recording (a large column advanced to its start time) checkpoints its state
+beside it every few minutes, so that an interrupted recording continues from
+its last checkpoint, on the trajectory it would have followed.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,8 +38,11 @@ __all__ = ["StepSequence", "record_steps"]
 
 FloatArray = NDArray[np.float64]
 
-#: Bump when the recording changes, so that old cache files are not reused.
-_FORMAT = 1
+#: Bump when the recording changes, so that old cache files are not reused
+#: (2: the stepper's motion-following detection margin).
+_FORMAT = 2
+#: Wall seconds between two checkpoints of a recording.
+CHECKPOINT_S = 300.0
 
 
 @dataclass
@@ -87,6 +94,8 @@ def record_steps(
     cache: bool = True,
     progress: Callable[[str], None] | None = None,
     prep_tol: float | None = None,
+    d_max: float | None = None,
+    checkpoint_s: float = CHECKPOINT_S,
 ) -> StepSequence:
     """Advance ``make_scene()`` with ``solver`` to ``t_start``, then record ``n_steps`` steps.
 
@@ -107,34 +116,62 @@ def record_steps(
         need to bring the scene to a physical state, the recorded steps are
         solved at ``tol``.
     cache : bool
-        Read and write ``$COCD_CACHE/bench``.
+        Read and write ``$COCD_CACHE/bench`` (and checkpoints there).
     progress : callable, optional
         Called with a line of text every step while recording.
+    d_max : float, optional
+        Detection threshold (m) of every step: a fixed threshold, no margin
+        (:class:`~cocd.stepper.Stepper`); default the stepper's.
+    checkpoint_s : float
+        Wall seconds between two checkpoints.
     """
     scene = make_scene()
     key = _key(label, scene, dt, t_start, n_steps, solver, tol)
     if prep_tol is not None:
         key = hashlib.sha256(f"{key}|prep_tol={float(prep_tol)!r}".encode()).hexdigest()
+    if d_max is not None:
+        key = hashlib.sha256(f"{key}|d_max={float(d_max)!r}".encode()).hexdigest()
     path = cache_dir() / "bench" / f"{label}-{key[:16]}.pkl"
+    partial = path.with_suffix(".partial.pkl")
     if cache:
         seq = _read(path, key)
         if seq is not None:
             return seq
     start = time.perf_counter()
-    stepper = Stepper(scene, dt, solver=solver, tol=tol if prep_tol is None else prep_tol)
+    stepper = Stepper(
+        scene, dt, solver=solver, tol=tol if prep_tol is None else prep_tol, d_max=d_max
+    )
     n_before = max(0, round(t_start / dt) - round(scene.time / dt))
     say = progress or (lambda _line: None)
-    for k in range(n_before):
-        r = stepper.step()
-        say(f"{label}: preparing, step {k + 1}/{n_before}, t = {r.t:.4f} s, Nc = {r.nc}")
-    stepper.tol = float(tol)
     problems: list[ConicProblem] = []
     impulses: list[FloatArray] = []
     warm: list[FloatArray | None] = []
-    t0 = scene.time
-    prev_keys = stepper.contacts.keys if stepper.contacts is not None else None
-    prev_p = stepper.solution.p if stepper.solution is not None else None
-    for k in range(n_steps):
+    prev_keys: NDArray[np.int64] | None = None
+    prev_p: FloatArray | None = None
+    state = _read_checkpoint(partial, key) if cache else None
+    if state is not None:
+        scene, records, previous, problems, impulses, warm, prev_keys, prev_p = state
+        stepper.scene = scene
+        stepper.restore(records, previous)
+        say(f"{label}: continuing from the checkpoint at step {stepper.step_count}")
+    last = time.perf_counter()
+
+    def checkpoint() -> None:
+        nonlocal last
+        if cache and time.perf_counter() - last >= checkpoint_s:
+            _write(partial, key, (scene, stepper.records, stepper.previous, problems, impulses,
+                                  warm, prev_keys, prev_p))  # fmt: skip
+            last = time.perf_counter()
+
+    while stepper.step_count < n_before:
+        r = stepper.step()
+        say(f"{label}: preparing, step {r.step}/{n_before}, t = {r.t:.4f} s, Nc = {r.nc}")
+        checkpoint()
+    stepper.tol = float(tol)
+    t0 = scene.time - len(problems) * dt
+    if not problems and stepper.previous is not None:
+        prev_keys, prev_p = stepper.previous
+    while len(problems) < n_steps:
         r = stepper.step()
         assert stepper.problem is not None and stepper.solution is not None
         assert stepper.contacts is not None
@@ -147,7 +184,8 @@ def record_steps(
         problems.append(problem)
         impulses.append(p)
         prev_keys, prev_p = stepper.contacts.keys, p
-        say(f"{label}: recording, step {k + 1}/{n_steps}, t = {r.t:.4f} s, Nc = {r.nc}")
+        say(f"{label}: recording, step {len(problems)}/{n_steps}, t = {r.t:.4f} s, Nc = {r.nc}")
+        checkpoint()
     seq = StepSequence(
         label=label,
         dim=scene.dim,
@@ -163,6 +201,7 @@ def record_steps(
     )
     if cache:
         _write(path, key, seq)
+        partial.unlink(missing_ok=True)
     return seq
 
 
@@ -194,7 +233,21 @@ def _read(path: Path, key: str) -> StepSequence | None:
     return seq
 
 
-def _write(path: Path, key: str, seq: StepSequence) -> None:
+def _read_checkpoint(path: Path, key: str) -> tuple[Any, ...] | None:
+    """The state a recording saved, if ``path`` holds one of this key."""
+    if not path.exists():
+        return None
+    try:
+        with open(path, "rb") as f:
+            stored_key, state = pickle.load(f)
+    except Exception:
+        return None
+    if stored_key != key or not isinstance(state, tuple) or len(state) != 8:
+        return None
+    return state
+
+
+def _write(path: Path, key: str, seq: object) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
     try:

@@ -12,6 +12,14 @@ Two cases, as in the seed (section 3.4, Table 1):
   seed (its box at rest is this collapse's initial state); ``dt = 1e-2`` s,
   ``eps = 1e-8`` and ``1e-5``, statistics over the steps from ``t = 1`` s.
 
+The seed counts Nc potential contacts (pairs closer than its threshold D,
+section 3.3) but does not give D: both cases detect contacts with the fixed
+threshold that gives the seed's Nc per grain at the start of the recorded
+steps (:data:`D_SEED_2D`, :data:`D_SEED_3D`, in mean radii, found by
+``python benchmarks/seed_contacts.py``), so that the problems are the size of
+the seed's. Every step of the trajectory is checked for overlaps at its end
+(:class:`~cocd.stepper.Stepper`).
+
 Each case's step problems are recorded once along one accurate trajectory
 (:func:`~cocd.bench.states.record_steps`, cached), then every backend solves
 the same problems in a :class:`~cocd.bench.runner.Worker` (time limit, memory
@@ -51,6 +59,8 @@ COLUMNS = [
     "dim",
     "N",
     "Nc",
+    "Nc_per_grain",
+    "d_max_r",
     "dt",
     "eps",
     "solver",
@@ -85,6 +95,14 @@ TRAJECTORY_TOL = 1e-8
 #: ones use TRAJECTORY_TOL): 100 steps of a flowing column at 1e-8 take longer
 #: than every backend's solves together.
 PREP_TOL_3D = 1e-6
+
+#: Detection thresholds D of the two cases, in mean radii: the fixed thresholds at
+#: which the columns have the seed's potential contacts per grain at the start of
+#: the recorded steps (4.49 per disc for 8308 discs, 6.75 per sphere), measured on
+#: the 8308-disc column and the 1229-sphere one (1 % of the seed's)
+#: (``python benchmarks/seed_contacts.py``, ``results/seed_contacts.md``).
+D_SEED_2D = 1.63
+D_SEED_3D = 0.98
 
 #: Table 1 of the seed (DESIGN.md section 5): Mosek's interior point, cold, ten steps.
 SEED_ROWS: list[dict[str, Any]] = [
@@ -207,20 +225,21 @@ def run(
         rows.append(row)
         write()
 
-    # (case, label, builder, dt, t_start, eps list, dim, scale, tolerance before t_start)
+    # (case, label, builder, dt, t_start, eps list, dim, scale, tolerance before t_start,
+    #  detection threshold in mean radii)
     plan: list[tuple[str, str, Callable[[], Scene], float, float, list[float], int, float,
-                     float | None]] = []  # fmt: skip
+                     float | None, float]] = []  # fmt: skip
     if names.get(2):
         for n in sorted({max(MIN_GRAINS, round(scale * n)) for n in SEED_N_2D}):
             make: Callable[[], Scene] = partial(column_2d, n)
             plan.append((CASE_2D, f"table1-column-2d-{n}", make, DT_2D, t_start_2d, EPS_2D, 2,
-                         scale, None))  # fmt: skip
+                         scale, None, D_SEED_2D))  # fmt: skip
     if names.get(3):
         n = max(1, round(scale_3d * SEED_N_3D))
         make = partial(column_collapse, 3, n_grains=n, width=CHANNEL_WIDTH, bed="rough", mu=MU_3D)
         plan.append((CASE_3D, f"table1-column-3d-{n}", make, DT_3D, t_start_3d, EPS_3D, 3,
-                     scale_3d, PREP_TOL_3D))  # fmt: skip
-    for case, label, make, dt, t0, eps_list, dim, case_scale, prep_tol in plan:
+                     scale_3d, PREP_TOL_3D, D_SEED_3D))  # fmt: skip
+    for case, label, make, dt, t0, eps_list, dim, case_scale, prep_tol, d_r in plan:
         _case(
             case,
             label,
@@ -239,6 +258,7 @@ def run(
             emit=emit,
             prep_tol=prep_tol,
             row_budget=row_budget,
+            d_max_r=d_r,
         )
     table = write()
     progress(f"table1: done in {time.perf_counter() - start:.0f} s")
@@ -261,21 +281,24 @@ def _case(
     memory_gb: float,
     scale: float,
     progress: Callable[[str], None],
-    done: dict[tuple[int, int, float, str], dict[str, Any]],
+    done: dict[tuple[int, int, float, str, float], dict[str, Any]],
     emit: Callable[[dict[str, Any]], None],
     prep_tol: float | None = None,
     row_budget: float | None = None,
+    d_max_r: float = D_SEED_2D,
 ) -> None:
     """Record one case's step problems, then run every backend on them at every eps.
 
-    Each finished row goes to ``emit``; rows found in ``done`` are emitted as they are.
+    Contacts are detected with the fixed threshold ``d_max_r`` mean radii. Each
+    finished row goes to ``emit``; rows found in ``done`` are emitted as they are.
     """
     scene = make()
     dim, n = scene.dim, scene.n_free
+    d_max = d_max_r * float(scene.radii.mean())
     todo = []
     for name in names:
         for eps in sorted(eps_list, reverse=True):
-            key = (dim, n, float(eps), name)
+            key = (dim, n, float(eps), name, float(d_max_r))
             if key in done:
                 emit(done[key])
             else:
@@ -284,8 +307,9 @@ def _case(
         progress(f"{label}: every row read from the previous table")
         return
     base = dict(
-        source=THIS_MACHINE, case=case, dim=dim, N=n, dt=dt, scale=scale, steps_ok=f"0/{steps}"
-    )
+        source=THIS_MACHINE, case=case, dim=dim, N=n, dt=dt, scale=scale, steps_ok=f"0/{steps}",
+        d_max_r=d_max_r,
+    )  # fmt: skip
     progress(
         f"{label}: {n} grains, recording {steps} steps from t = {t_start:g} s "
         f"with {trajectory} (tol {TRAJECTORY_TOL:g})"
@@ -301,18 +325,21 @@ def _case(
             tol=TRAJECTORY_TOL,
             prep_tol=prep_tol,
             progress=_throttled(progress),
+            d_max=d_max,
         )
     except CocdError as exc:
         # No problems to compare on: every backend gets a row saying why.
         note = f"no step problems: trajectory ({trajectory}) failed: {str(exc)[:200]}"
         progress(f"{label}: {note}")
         for name, eps in todo:
-            emit({**base, "Nc": np.nan, "eps": eps, "solver": name, "warm": "no", "note": note})
+            emit({**base, "Nc": np.nan, "Nc_per_grain": np.nan, "eps": eps, "solver": name,
+                  "warm": "no", "note": note})  # fmt: skip
         return
     nc = float(np.mean([p.nc for p in seq.problems]))
     built = "read from the cache" if seq.build_time == 0.0 else f"{seq.build_time:.0f} s"
     progress(f"{label}: {len(seq.problems)} problems, mean Nc = {nc:.0f} ({built})")
     base["Nc"] = nc
+    base["Nc_per_grain"] = nc / n
     # Kept alive while the worker uses it (the worker keys problems by identity).
     warmup = warmup_problem(dim, dt)
     # Loosest eps first: a backend out of time there would be at a tighter eps too.
@@ -389,8 +416,10 @@ def _ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: (r["dim"], r["N"], r["eps"], first[r["solver"]]))
 
 
-def _previous_rows(path: Path) -> dict[tuple[int, int, float, str], dict[str, Any]]:
-    """Rows of this machine in an earlier ``table1.csv``, keyed by (dim, N, eps, solver)."""
+def _previous_rows(path: Path) -> dict[tuple[int, int, float, str, float], dict[str, Any]]:
+    """Rows of this machine in an earlier ``table1.csv``, keyed by (dim, N, eps, solver,
+    detection threshold); a table written before the threshold was a column has none
+    to reuse (its problems were detected with another threshold)."""
     if not path.is_file():
         return {}
     try:
@@ -398,17 +427,22 @@ def _previous_rows(path: Path) -> dict[tuple[int, int, float, str], dict[str, An
     except (OSError, ValueError, pd.errors.ParserError) as exc:
         raise CocdError(f"cannot resume from {path}: {exc}") from None
     missing = set(COLUMNS) - set(old.columns)
+    if missing and missing <= {"Nc_per_grain", "d_max_r"}:
+        return {}  # written before the threshold was a column: nothing to reuse
     if missing:
         raise CocdError(f"cannot resume from {path}: columns {sorted(missing)} are missing")
     old = old[old["source"] == THIS_MACHINE].astype(object)
     old = old.where(pd.notna(old), None)
-    rows: dict[tuple[int, int, float, str], dict[str, Any]] = {}
+    rows: dict[tuple[int, int, float, str, float], dict[str, Any]] = {}
+    numbers = ("Nc", "Nc_per_grain", "d_max_r", "iterations", "time_per_step_s",
+               "ccp_residual", "coulomb_residual")  # fmt: skip
     for rec in old[COLUMNS].to_dict("records"):
         rec["note"] = rec["note"] or ""
         rec["steps_ok"] = rec["steps_ok"] or ""
-        for key in ("Nc", "iterations", "time_per_step_s", "ccp_residual", "coulomb_residual"):
+        for key in numbers:
             rec[key] = np.nan if rec[key] is None else float(rec[key])
-        rows[int(rec["dim"]), int(rec["N"]), float(rec["eps"]), str(rec["solver"])] = rec
+        where = (int(rec["dim"]), int(rec["N"]), float(rec["eps"]), str(rec["solver"]))
+        rows[(*where, float(rec["d_max_r"]))] = rec
     return rows
 
 
@@ -453,6 +487,8 @@ def _seed_rows() -> list[dict[str, Any]]:
             "dim": r["dim"],
             "N": r["N"],
             "Nc": float(r["Nc"]),
+            "Nc_per_grain": float(r["Nc"]) / r["N"],
+            "d_max_r": np.nan,  # not given in the seed's text
             "dt": r["dt"],
             "eps": r["eps"],
             "solver": "mosek",
@@ -506,7 +542,10 @@ def _write(
             "eps is the tol handed to each backend, the residuals are the framework's "
             "(`cocd.residuals`), max over the steps with an answer (optimal, inaccurate, "
             "or the last iterate of a max_iter stop; failed steps have none), and "
-            "`steps_ok` counts the optimal ones. Interior points start cold; backends "
+            "`steps_ok` counts the optimal ones. Contacts are detected with a fixed "
+            "threshold `d_max_r` (mean radii) that gives the seed's potential contacts per "
+            "grain (`Nc_per_grain`; the seed does not state its threshold). "
+            "Interior points start cold; backends "
             "that take a warm start get the previous step's impulses (column `warm`). "
             f"Time limit {time_limit:g} s per solve; time per step is the wall time of the "
             "whole call (set-up included), averaged over the solves that returned.",
@@ -520,6 +559,7 @@ def _write(
         "case",
         "N",
         "Nc",
+        "Nc_per_grain",
         "eps",
         "solver",
         "steps_ok",
