@@ -6,10 +6,12 @@ The data flow is one way::
 """
 
 from cocd.builders import HARD_CASES, box_3d, column_2d, column_collapse, stack, static_box
-from cocd.contacts import ContactSet, contact_jacobian, detect_contacts
+from cocd.contacts import ContactSet, Penetration, contact_jacobian, detect_contacts, penetration
 from cocd.errors import (
     CocdError,
     OverlapError,
+    PenetrationError,
+    PenetrationWarning,
     ProblemError,
     SceneError,
     SolverError,
@@ -52,6 +54,9 @@ __all__ = [
     "ContactSet",
     "MassProfile",
     "OverlapError",
+    "Penetration",
+    "PenetrationError",
+    "PenetrationWarning",
     "PrimalConicForm",
     "ProblemError",
     "Residuals",
@@ -77,6 +82,7 @@ __all__ = [
     "kinetic_energy",
     "main_mass",
     "mass_profile",
+    "penetration",
     "potential_energy",
     "project_coulomb",
     "rain_deposition",

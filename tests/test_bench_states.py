@@ -32,6 +32,8 @@ def test_prep_tol_solves_only_the_steps_before_t_start(cache, monkeypatch):
     assert asked == [1e-4] * 3 + [1e-8] * 2
     assert seq.trajectory_tol == 1e-8 and len(seq.problems) == 2
     assert seq.t_start == pytest.approx(3e-3)
+    # The trajectory's own end-of-step check is kept with it.
+    assert seq.meta["penetration_max"] <= 1e-2 and seq.meta["redos"] == 0
     # The second recorded step is warm-started from the first one's impulses.
     assert seq.warm_starts[1] is not None
     np.testing.assert_allclose(seq.warm_starts[1], seq.impulses[0])

@@ -198,6 +198,11 @@ def record_steps(
         trajectory_solver=solver,
         trajectory_tol=tol,
         build_time=time.perf_counter() - start,
+        meta={
+            # The trajectory's own end-of-step check (Stepper): what it let through.
+            "penetration_max": max((float(r.penetration) for r in stepper.records), default=0.0),
+            "redos": float(sum(r.redos for r in stepper.records)),
+        },
     )
     if cache:
         _write(path, key, seq)

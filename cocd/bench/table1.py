@@ -570,7 +570,28 @@ def _write(
     summary = f"N scaled by {_scales_text(scales, wanted)}.\n\n" + table[key].to_markdown(
         index=False, floatfmt=".3g"
     )
+    counts = _contact_counts(table)
+    if counts:
+        summary += "\n\nPotential contacts per grain:\n\n" + "\n".join(counts)
     write_meta(out, "table1", title=title, files=files, summary=summary)
+
+
+def _contact_counts(table: pd.DataFrame) -> list[str]:
+    """One line per size of this machine: Nc per grain and its threshold, beside the
+    seed's count where the seed has that size."""
+    seed = {(r["dim"], r["N"]): r["Nc"] / r["N"] for r in SEED_ROWS}
+    ours = table[(table.source == THIS_MACHINE) & table.Nc_per_grain.notna()]
+    lines = []
+    for (dim, n), rows in ours.groupby(["dim", "N"], sort=True):
+        kind = "discs" if dim == 2 else "spheres"
+        line = (
+            f"- {n} {kind}: {rows.Nc_per_grain.iloc[0]:.2f} "
+            f"(D = {rows.d_max_r.iloc[0]:g} mean radii)"
+        )
+        if (dim, n) in seed:
+            line += f"; the seed: {seed[dim, n]:.2f}"
+        lines.append(line)
+    return lines
 
 
 def _scales_text(scales: tuple[float, float], wanted: list[str]) -> str:
