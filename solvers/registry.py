@@ -159,6 +159,15 @@ def _builtin() -> list[SolverInfo]:
             description="Projected Gauss-Seidel on the cone complementarity problem.",
         ),
         SolverInfo(
+            name="bgs",
+            entry="solvers.bgs_:bgs_solve_problem",
+            formulation="ccp",
+            requires=("numba",),
+            warm_start=True,
+            first_order=True,
+            description="Block Gauss-Seidel on the CCP with exact local (3 x 3) solves.",
+        ),
+        SolverInfo(
             name="apgd",
             entry="solvers.apgd_:apgd_solve_problem",
             formulation="dual",

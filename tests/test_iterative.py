@@ -35,7 +35,7 @@ from cocd.stepper import match_impulses
 from solvers._apgd_kernels import step_and_length
 from solvers._kernels import project_cones
 
-ITERATIVE = ["pgs", "apgd"]
+ITERATIVE = ["pgs", "bgs", "apgd"]
 TOL = 1e-8
 U_AGREEMENT = 1e-4
 DT = 1e-3
