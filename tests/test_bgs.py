@@ -143,8 +143,8 @@ def test_colours_share_no_unknown():
         ]
         assert sum(len(u) for u in per_contact) == len(np.unique(touched))
     # Coloured and sequential sweeps solve the same problem.
-    coloured = solvers.solve(problem, "bgs", tol=1e-9)
-    sequential = solvers.solve(problem, "bgs", tol=1e-9, colour=False)
+    coloured = solvers.solve(problem, "bgs", tol=1e-9, colour=True)
+    sequential = solvers.solve(problem, "bgs", tol=1e-9)
     assert coloured.extras["colours"] == colour.max() + 1
     assert sequential.extras["colours"] == 1
     for sol in (coloured, sequential):
