@@ -63,6 +63,19 @@ def test_one_example_per_builder_and_each_runs(tmp_path):
             assert rf.config["builder"] == config.builder
 
 
+def test_seed_run_files_run_at_a_small_size(tmp_path):
+    # The seeds' full-size runs (examples/seed/) take hours: check that each file is
+    # valid and runs, with its grain count cut down.
+    seed_files = sorted((ROOT / "examples" / "seed").glob("*.toml"))
+    assert seed_files
+    for path in seed_files:
+        data = load_config(path).model_dump()
+        data["params"]["n_grains"] = 60
+        data["run"].update(steps=1, until=None, frame_every=1)
+        summary = run(parse_config(data, str(path)), tmp_path / path.stem)
+        assert summary.steps == 1 and summary.frames == 2, path.name
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [
