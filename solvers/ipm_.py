@@ -46,7 +46,10 @@ cocd                      ipm
 ========================  =====================================================
 
 ``extras``: ``linsolve``, ``history`` (iteration, mu, step, ccp_residual),
-``times`` (seconds in assembly, factorisation, solves, residual checks).
+``times`` (seconds in assembly, factorisation, solves, residual checks),
+``factorisations`` (numerical ones), ``system_size`` and ``system_nnz`` (the
+order of ``K`` and the entries of its upper triangle) and ``factor_nnz`` (the
+factor's nonzeros as PARDISO reports them; ``None`` for the other solvers).
 """
 
 from __future__ import annotations
@@ -161,6 +164,11 @@ class _Pardiso:
         self.data[:] = data
         self.call(22, np.zeros(self.n))
 
+    @property
+    def factor_nnz(self) -> int | None:
+        """Nonzeros of the Cholesky factor (PARDISO's report)."""
+        return int(self.solver.iparm[17])
+
     def solve(self, rhs: Any) -> Any:
         return self.call(33, rhs)
 
@@ -187,6 +195,8 @@ class _Cholmod:
             self.matrix(np.ascontiguousarray(data)), self.I, self.J, (self.n, self.n)
         )
 
+    factor_nnz = None
+
     def factor(self, data: Any) -> None:
         self.cholmod.numeric(self._matrix(data), self.F)
 
@@ -207,6 +217,7 @@ class _Qdldl:
         self.upper_csc.sort_indices()
         self._perm = (self.upper_csc.data - 1.0).astype(np.int64)
         self.F: Any = None
+        self.factor_nnz: int | None = None
 
     def factor(self, data: Any) -> None:
         import qdldl
@@ -445,6 +456,7 @@ def ipm_solve_problem(
         "check": 0.0,
         "polish": 0.0,
     }
+    factorisations = [0]
 
     form = problem.primal_conic_form()
     n_lin = sum(size for kind, size in form.cones if kind == "nonneg")
@@ -494,6 +506,7 @@ def ipm_solve_problem(
         else:
             raise np.linalg.LinAlgError(f"ipm: factorisation failed ({failure})")
         times["factor"] += time.perf_counter() - t1
+        factorisations[0] += 1
 
     def kmul(v: Any) -> Any:
         return pdiag * v + At @ (theta_mul(A @ v))
@@ -647,5 +660,9 @@ def ipm_solve_problem(
             "times": times,
             "ccp_residual": ccp_residual(problem, p_out),
             "polished": polished,
+            "factorisations": factorisations[0],
+            "system_size": int(K.shape[0]),
+            "system_nnz": int(K.nnz),
+            "factor_nnz": None if lin is None else lin.factor_nnz,
         },
     )

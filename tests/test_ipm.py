@@ -107,6 +107,13 @@ def test_every_installed_linear_solver_gives_the_same_answer(dim):
         assert sol.extras["linsolve"] == name
         assert np.linalg.norm(sol.u - ref.u) <= 1e-6 * scale, name
         assert sol.iterations <= 40
+        # One numerical factorisation per iteration (more when a pivot forces a shift).
+        assert sol.extras["factorisations"] >= sol.iterations - 1
+        assert sol.extras["system_size"] == problem.H.shape[1]
+        if name == "pardiso":  # the factor holds K's upper triangle and its fill
+            assert sol.extras["factor_nnz"] >= sol.extras["system_nnz"]
+        else:
+            assert sol.extras["factor_nnz"] is None
 
 
 def test_sliding_contact_is_finished_by_the_polish():
