@@ -122,6 +122,9 @@ class _Pardiso:
             ip[17] = -1  # report the factor's nonzeros
             _PARDISO.append(solver)
         self.solver = _PARDISO[0]
+        # An input (< 0: report) that PARDISO overwrites with the count: ask again for
+        # every matrix, or the handle shared between solves reports the first one's.
+        self.solver.iparm[17] = -1
         setter = getattr(self.solver.libmkl, "MKL_Set_Num_Threads", None)
         if setter is not None:
             setter(ctypes.c_int(threads))
