@@ -8,7 +8,7 @@ Usage::
 For each column size, the step from t = 0.1 s of the seed's 3D column (as in
 ``benchmarks/column3d_solvers.py``: lattice packing, rough bed, 20 cm channel,
 mu = 0.3, dt = 1e-2 s, d_max = 0.98 r, trajectory by ``apgd`` at ``tol``,
-cached) is handed to ``ipm`` (PARDISO on two threads) for three iterations,
+cached) is handed to ``ipm`` (PARDISO on two threads: extra ``pardiso``) for three iterations,
 without the polish: the rows give the order of its Newton matrix ``K`` (the
 generalized velocities), the entries of K's upper triangle and of its Cholesky
 factor, and the time of one numerical factorisation (mean of three) and of the
@@ -62,7 +62,9 @@ def main() -> None:
     rows = []
     for n in sizes:
         problem, n_free = step_problem(n, args.tol, args.t_start)
-        sol = solvers.solve(problem, "ipm", tol=args.tol, max_iter=3, polish=False, threads=2)
+        sol = solvers.solve(
+            problem, "ipm", tol=args.tol, max_iter=3, polish=False, linsolve="pardiso", threads=2
+        )
         ex = sol.extras
         row = {
             "N": n_free,
@@ -77,7 +79,15 @@ def main() -> None:
             "source": "measured (3 iterations)",
         }
         if n == args.full:
-            full = solvers.solve(problem, "ipm", tol=args.tol, max_iter=40, polish=False, threads=2)
+            full = solvers.solve(
+                problem,
+                "ipm",
+                tol=args.tol,
+                max_iter=40,
+                polish=False,
+                linsolve="pardiso",
+                threads=2,
+            )
             history = full.extras["history"]
             row.update(
                 full_status=full.status.value,
