@@ -25,7 +25,7 @@ contacts of a colour share an unknown) and each colour is swept in parallel on
 numba's threads; the colouring depends only on the problem, so the answer does
 not depend on the thread count. On two cores the sequential sweep (the default)
 is the faster: on a step of the seed's 3D column at 12 293 spheres a coloured
-sweep (23 colours) took 62 ms on two threads against 29 ms for the sequential
+sweep (23 colours) took 66.6 ms on two threads against 28.4 ms for the sequential
 one (``results/column3d_solvers.md``).
 
 ========================  =====================================================
