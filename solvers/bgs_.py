@@ -17,10 +17,11 @@ formed: ``v = U + M^-1 H'p`` is updated after every contact.
 Order and threads. The sweep visits the contacts in the problem's order
 (``order="natural"``, the default), or by their graph distance from the supports
 (walls and fixed grains): ``"top-down"`` (farthest first) or ``"bottom-up"``.
-On a resting stack and on the 3D column the three need about as many sweeps
-(GS on a chain of contacts is GS on a 1D Laplacian whatever the order: the load
-moves about one contact per sweep); the natural order reads memory in order and
-sweeps faster. With ``colour=True`` the order is coloured greedily (no two
+On a resting stack the three need about as many sweeps (GS on a chain of
+contacts is GS on a 1D Laplacian whatever the order: the load moves about one
+contact per sweep); on the seed's 3D column neither distance order reaches a
+lower residual than the natural one in the same time, whose sweeps read memory in
+order and are faster. With ``colour=True`` the order is coloured greedily (no two
 contacts of a colour share an unknown) and each colour is swept in parallel on
 numba's threads; the colouring depends only on the problem, so the answer does
 not depend on the thread count. On two cores the sequential sweep (the default)
