@@ -75,9 +75,8 @@ from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
 from solvers._bgs_kernels import bgs_sweep, greedy_colours, support_depth
 from solvers._kernels import natural_map_sq
-from solvers._nscd_kernels import delassus_blocks
 from solvers.base import Solution, Status
-from solvers.nscd_ import _inverses
+from solvers.nscd_ import contact_blocks
 from solvers.pgs_ import impulse_rms, positive_int, ratio, reject_options, start_impulses
 
 if TYPE_CHECKING:
@@ -132,10 +131,7 @@ def bgs_solve_problem(
     shift = problem.delassus_shift
     rho = np.ascontiguousarray(problem.rho, dtype=np.float64)
     mu = np.ascontiguousarray(problem.mu, dtype=np.float64)
-    W = delassus_blocks(indptr, indices, data, inv_mass, nc, m)  # of H M^-1 H'
-    if shift:  # the problem's own blocks: W = H M^-1 H' - shift I
-        W = W - shift * np.eye(m)[None, :, :]
-    Winv = _inverses(W)
+    W, Winv = contact_blocks(problem, indptr, indices, data, inv_mass)
     sequence = _order(H, indptr, indices, m, nc, order)
     if colour and nc > 0:
         colours = greedy_colours(sequence, indptr, indices, m, H.shape[1])

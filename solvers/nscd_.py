@@ -127,10 +127,7 @@ def nscd_solve_problem(
     offset = np.ascontiguousarray(problem.offset)
     mu = np.ascontiguousarray(problem.mu)
     shift = problem.delassus_shift
-    W = delassus_blocks(indptr, indices, data, inv_mass, nc, m)  # of H M^-1 H'
-    if shift:  # the problem's own blocks: W = H M^-1 H' - shift I
-        W = W - shift * np.eye(m)[None, :, :]
-    Winv = _inverses(W)
+    W, Winv = contact_blocks(problem, indptr, indices, data, inv_mass)
     if warm_start is None:
         p = np.zeros((nc, m))
     else:
@@ -190,6 +187,22 @@ def nscd_solve_problem(
             "local_fallbacks": int(counts[1]),
         },
     )
+
+
+def contact_blocks(
+    problem: ConicProblem,
+    indptr: NDArray[np.int64],
+    indices: NDArray[np.int64],
+    data: NDArray[np.float64],
+    inv_mass: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The problem's diagonal Delassus blocks ``W_aa`` (``(nc, m, m)``, the Delassus shift
+    taken off) and their inverses, from the CSR arrays of ``H`` (shared with ``bgs``)."""
+    nc, m = problem.nc, problem.contact_dim
+    W = delassus_blocks(indptr, indices, data, inv_mass, nc, m)  # of H M^-1 H'
+    if problem.delassus_shift:  # the problem's own blocks: W = H M^-1 H' - shift I
+        W = W - problem.delassus_shift * np.eye(m)[None, :, :]
+    return W, _inverses(W)
 
 
 def _inverses(W: NDArray[np.float64]) -> NDArray[np.float64]:

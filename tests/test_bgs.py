@@ -103,19 +103,18 @@ def test_every_sweep_lowers_the_dual_objective():
         return 0.5 * x @ (W @ x) + b @ x
 
     from solvers._bgs_kernels import bgs_sweep
-    from solvers._nscd_kernels import delassus_blocks
-    from solvers.nscd_ import _inverses
+    from solvers.nscd_ import contact_blocks
 
     H, nc, m = problem.H, problem.nc, problem.contact_dim
     indptr, indices = H.indptr.astype(np.int64), H.indices.astype(np.int64)
     inv_mass = 1.0 / problem.mass
-    blocks = delassus_blocks(indptr, indices, H.data, inv_mass, nc, m)
+    blocks, inverses = contact_blocks(problem, indptr, indices, H.data, inv_mass)
     p = np.zeros((nc, m))
     v = problem.velocity(p)
     order, starts = np.arange(nc, dtype=np.int64), np.array([0, nc], dtype=np.int64)
     values = [0.0]
     for _ in range(15):
-        bgs_sweep(indptr, indices, H.data, inv_mass, problem.offset, blocks, _inverses(blocks),
+        bgs_sweep(indptr, indices, H.data, inv_mass, problem.offset, blocks, inverses,
                   problem.mu, p, v, order, starts, 0.0)  # fmt: skip
         values.append(objective(p))
     scale = abs(values[-1])
