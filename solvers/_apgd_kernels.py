@@ -24,7 +24,7 @@ __all__ = [
     "csr_scaled_matvec_add",
     "differences",
     "extrapolate",
-    "scaled_natural_map_sq_par",
+    "natural_map_sq_par",
     "step_and_length",
     "weighted_square",
 ]
@@ -111,7 +111,8 @@ def differences(x_new, x, g_new, g_x, g_y, s, delta, dg):
 
     Returns ``(g_x'delta + delta'dg / 2, g_y'delta, max_a s_a |delta_a|_inf)``:
     the objective's change (exact for a quadratic), the gradient-mapping
-    restart test, and the largest change of an unscaled impulse component.
+    restart test, and the largest change of an unscaled impulse component
+    (``s`` of shape ``(nc, m)``: impulse ``= s * q`` componentwise).
     """
     nc, m = x.shape
     df = 0.0
@@ -128,11 +129,11 @@ def differences(x_new, x, g_new, g_x, g_y, s, delta, dg):
             dg[a, k] = dgk
             part_df += g_x[a, k] * dl + 0.5 * dl * dgk
             part_gm += g_y[a, k] * dl
-            if abs(dl) > big:
-                big = abs(dl)
+            if abs(dl) * s[a, k] > big:
+                big = abs(dl) * s[a, k]
         df += part_df
         gm += part_gm
-        biggest[a] = big * s[a]
+        biggest[a] = big
     return df, gm, biggest.max() if nc else 0.0
 
 
@@ -147,19 +148,22 @@ def extrapolate(x_new, delta, g_new, dg, beta, y, g_y):
 
 
 @njit(cache=True, parallel=True)
-def scaled_natural_map_sq_par(q, g, s, mu):
-    """``sum_a s_a^2 |q_a - P_K(q_a - g_a)|^2``, as ``_kernels.scaled_natural_map_sq``."""
+def natural_map_sq_par(q, g, s, rho, mu):
+    """``sum_a |p_a - P_K(p_a - rho_a u_a)|^2`` with ``p = s q`` and ``u = g / s`` (componentwise).
+
+    The framework's natural map of the impulses ``p`` (``rho`` per contact,
+    ``mu`` the true friction coefficients), read from the scaled iterate ``q``
+    and its gradient ``g = s u``.
+    """
     nc, m = q.shape
     total = 0.0
     for a in prange(nc):
-        x0 = q[a, 0] - g[a, 0]
-        x1 = q[a, 1] - g[a, 1] if m > 1 else 0.0
-        x2 = q[a, 2] - g[a, 2] if m > 2 else 0.0
+        p0 = s[a, 0] * q[a, 0]
+        p1 = s[a, 1] * q[a, 1] if m > 1 else 0.0
+        p2 = s[a, 2] * q[a, 2] if m > 2 else 0.0
+        x0 = p0 - rho[a] * g[a, 0] / s[a, 0]
+        x1 = p1 - rho[a] * g[a, 1] / s[a, 1] if m > 1 else 0.0
+        x2 = p2 - rho[a] * g[a, 2] / s[a, 2] if m > 2 else 0.0
         x0, x1, x2 = _project3(x0, x1, x2, mu[a], m)
-        part = (q[a, 0] - x0) ** 2
-        if m > 1:
-            part += (q[a, 1] - x1) ** 2
-        if m > 2:
-            part += (q[a, 2] - x2) ** 2
-        total += s[a] * s[a] * part
+        total += (p0 - x0) ** 2 + (p1 - x1) ** 2 + (p2 - x2) ** 2
     return total

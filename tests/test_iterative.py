@@ -118,14 +118,15 @@ def test_fused_apgd_step_kernel_matches_the_core(m):
     assert dd == pytest.approx(float(np.sum((expected - y) ** 2)), rel=1e-12)
 
 
-def test_apgd_incremental_gradient_matches_a_fresh_one(packings):
+@pytest.mark.parametrize("scaling", ["block", "contact"])
+def test_apgd_incremental_gradient_matches_a_fresh_one(packings, scaling):
     # g(y + d) = g(y) + S W S d, with and without a Delassus shift.
-    from solvers.apgd_ import _ScaledDual
+    from solvers.apgd_ import _ScaledDual, component_scaling
 
     for shift in (0.0, 1e-3):
         problem = packings["box-3d"]
         problem = dataclasses.replace(problem, delassus_shift=shift)
-        s = np.sqrt(problem.rho)
+        s = component_scaling(problem, scaling)
         scaled = _ScaledDual(problem, s)
         rng = np.random.default_rng(3)
         y, d = rng.standard_normal((2, problem.nc, problem.contact_dim))
@@ -135,6 +136,32 @@ def test_apgd_incremental_gradient_matches_a_fresh_one(packings):
         out = np.empty_like(y)
         scaled.update_gradient(scaled.gradient(y), z, d, out)
         np.testing.assert_allclose(out, scaled.gradient(y + d), rtol=1e-11, atol=1e-11)
+
+
+@pytest.mark.parametrize("name", ["box-3d", "column-2d"])
+def test_apgd_block_scaling_gives_unit_diagonal_and_the_framework_natural_map(packings, name):
+    # S W S has a unit diagonal (spheres and discs: tangential entries equal), and the
+    # kernel's natural map read from (q, g) is the framework's one of p = s q.
+    from solvers._apgd_kernels import natural_map_sq_par
+    from solvers.apgd_ import _ScaledDual, component_scaling
+
+    problem = packings[name]
+    s = component_scaling(problem, "block")
+    scaled = _ScaledDual(problem, s)
+    e = np.zeros((problem.nc, problem.contact_dim))
+    for a in range(0, problem.nc, max(1, problem.nc // 7)):
+        for k in range(problem.contact_dim):
+            e[a, k] = 1.0
+            assert scaled.product(e)[a, k] == pytest.approx(1.0, rel=1e-12)
+            e[a, k] = 0.0
+    rng = np.random.default_rng(4)
+    p = project_coulomb(rng.standard_normal((problem.nc, problem.contact_dim)), problem.mu)
+    q = p / s
+    g = scaled.gradient(q)
+    u = problem.contact_velocity(p).reshape(p.shape)
+    expected = p - project_coulomb(p - problem.rho[:, None] * u, problem.mu)
+    value = natural_map_sq_par(q, g, s, problem.rho, problem.mu)
+    assert value == pytest.approx(float(np.sum(expected**2)), rel=1e-10)
 
 
 def test_projection_kernel_frictionless_cone_excludes_negative_normal():
@@ -242,6 +269,21 @@ def test_pgs_over_relaxation_converges(omega, packing, packings, references):
 def test_pgs_omega_outside_0_2_raises(omega, packings):
     with pytest.raises(ProblemError, match="omega"):
         solvers.solve(packings["column-2d"], "pgs", omega=omega)
+
+
+@pytest.mark.parametrize("packing", ["column-2d", "box-3d"])
+def test_apgd_scalings_agree_with_clarabel(packing, packings, references):
+    problem = packings[packing]
+    for scaling in ("block", "contact"):
+        sol = solvers.solve(problem, "apgd", tol=TOL, scaling=scaling)
+        assert sol.status == "optimal"
+        assert ccp_residual(problem, sol.p) <= TOL
+        assert _velocity_error(problem, sol.u, references[packing].u) <= U_AGREEMENT
+
+
+def test_apgd_unknown_scaling_raises(packings):
+    with pytest.raises(ProblemError, match="scaling must be one of block, contact"):
+        solvers.solve(packings["column-2d"], "apgd", scaling="diagonal")
 
 
 @pytest.mark.parametrize("name", ITERATIVE)
