@@ -39,9 +39,12 @@ def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
         out=out,
         trajectory="clarabel",
         progress=lambda line: None,
+        packings=["jammed_box"],
     )
     assert len(table) == 8
     assert set(table.solver) == {"ipm", "clarabel"}
+    assert set(table.packing) == {"column", "jammed_box"}
+    assert (table.warm == "no").all()
     assert (table.steps_ok == "2/2").all()
     assert (table.ccp_residual[table.dim == 2] <= 1e-8).all()
     assert (table.ccp_residual[table.dim == 3] <= 1e-5).all()
@@ -59,6 +62,40 @@ def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
         )
 
 
+def test_scaling_real_packings_have_granular_contact_counts(tmp_path, cache):
+    # The seed's column mid-flow (warm-started for apgd) and a rain-deposited box at
+    # rest have the potential contacts of a random packing (over 5 per sphere, walls
+    # included, at 60 spheres), the cubic lattice about half as many.
+    table = scaling.run(
+        solvers="apgd,ipm",
+        n2d=[],
+        n3d=[60],
+        steps=1,
+        time_limit=120.0,
+        memory_gb=None,
+        out=tmp_path,
+        progress=lambda line: None,
+    )
+    assert list(table.packing.unique()) == ["column", "box", "jammed_box"]
+    assert (table.steps_ok == "1/1").all()
+    assert (table.ccp_residual <= 1e-5).all()
+    by = table.set_index(["packing", "solver"])
+    assert by.loc[("column", "apgd"), "warm"] == "yes"
+    assert by.loc[("column", "ipm"), "warm"] == "no"
+    assert by.loc[("box", "apgd"), "warm"] == "no"
+    lattice = by.loc[("jammed_box", "apgd"), "Nc_per_grain"]
+    assert lattice < 3.6
+    assert by.loc[("box", "apgd"), "Nc_per_grain"] > 5.0
+    assert by.loc[("column", "apgd"), "Nc_per_grain"] > 5.0
+    fitted = scaling.fits(table)
+    assert set(zip(fitted.packing, fitted.solver, strict=True)) == {
+        (p, s) for p in ("column", "box", "jammed_box") for s in ("apgd", "ipm")
+    }
+    with pytest.raises(CocdError, match="unknown 3D packing 'rain'"):
+        scaling.run(solvers="apgd", n2d=[], n3d=[8], steps=1, time_limit=1.0,
+                    memory_gb=None, out=tmp_path, packings=["rain"])  # fmt: skip
+
+
 def test_scaling_skips_larger_sizes_after_a_time_limit(tmp_path):
     # A time limit no backend can meet: apgd stops on it at the first size and
     # is not tried at the next one.
@@ -71,6 +108,7 @@ def test_scaling_skips_larger_sizes_after_a_time_limit(tmp_path):
         memory_gb=None,
         out=tmp_path,
         progress=lambda line: None,
+        packings=["jammed_box"],
     )
     assert list(table.N) == [8, 27]
     first, second = table.iloc[0], table.iloc[1]
@@ -91,7 +129,9 @@ def test_scaling_takes_2d_rows_from_table1(tmp_path, cache):
             dim=2,
             N=n,
             Nc=3.0 * n,
+            Nc_per_grain=3.0,
             solver="ipm",
+            warm="no",
             eps=1e-8,
             steps_ok="10/10",
             iterations=20.0,
@@ -106,7 +146,9 @@ def test_scaling_takes_2d_rows_from_table1(tmp_path, cache):
             dim=2,
             N=8308,
             Nc=37331.0,
+            Nc_per_grain=4.49,
             solver="mosek",
+            warm="no",
             eps=1e-8,
             steps_ok="",
             iterations=47.0,
@@ -127,9 +169,18 @@ def test_scaling_takes_2d_rows_from_table1(tmp_path, cache):
         out=tmp_path / "out",
         table1=path,
         progress=lambda line: None,
+        packings=["jammed_box"],
     )
     two = table[table.dim == 2]
     assert list(two.N) == [1000, 8000] and (two.note.str.startswith("from table1.csv")).all()
     fit = scaling.fits(table)
     k = fit[(fit.dim == 2) & (fit.solver == "ipm")].exponent.iloc[0]
     assert k == pytest.approx(1.2)
+
+
+def test_scaling_cli_rejects_an_unknown_packing_in_one_line(tmp_path):
+    args = ["bench", "scaling", "--n2d", "", "--n3d", "8", "--packings", "column,rain"]
+    result = CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+    assert result.exit_code != 0
+    assert "unknown 3D packing 'rain'; choose from column, box, jammed_box" in result.output
+    assert "Traceback" not in result.output

@@ -277,8 +277,20 @@ def scaling(
         str, typer.Option("--n2d", help="2D column sizes (comma-separated; empty for none).")
     ] = "1109,8308,20488,50772",
     n3d: Annotated[
-        str, typer.Option("--n3d", help="3D static box sizes (comma-separated; empty for none).")
+        str,
+        typer.Option("--n3d", help="3D sizes per packing (comma-separated; empty for none)."),
     ] = "2000,8000,32000",
+    packings: Annotated[
+        str,
+        typer.Option(
+            "--packings",
+            help="3D packings: column (mid-flow), box (rain-deposited, at rest), jammed_box.",
+        ),
+    ] = "column,box,jammed_box",
+    n3d_box: Annotated[
+        str | None,
+        typer.Option("--n3d-box", help="Sizes of the box packing, if not those of --n3d."),
+    ] = None,
     steps: Annotated[int, typer.Option("--steps", help="Problems timed per size.")] = 3,
     trajectory: Annotated[
         str, typer.Option("--trajectory", help="Backend that steps the 2D columns.")
@@ -291,7 +303,7 @@ def scaling(
     memory_gb: MemoryGb = None,
     out: Out = Path("results"),
 ) -> None:
-    """Time per step against N per backend (2D column, 3D static box), with fitted exponents."""
+    """Time per step against N per backend (2D column; 3D column, box, lattice), with fits."""
     from cocd.bench import scaling as mod
 
     _run(
@@ -305,6 +317,8 @@ def scaling(
             out=out,
             trajectory=trajectory,
             table1=table1,
+            packings=[p.strip() for p in packings.split(",") if p.strip()],
+            n3d_box=None if n3d_box is None else _ints(n3d_box, "--n3d-box"),
         ),
         out,
     )

@@ -2,16 +2,29 @@
 
 2D: the Table 1 column collapse (mid-collapse steps from t = 0.11 s, dt = 1e-3,
 eps 1e-8), recorded along one trajectory per N exactly as ``cocd bench
-table1`` does (the same cache). 3D: a static box, ``jammed_box(N, dim=3)``
-(equal spheres on a simple cubic lattice touching each other and the walls,
-gravity on, dt = 1e-2, eps 1e-5): the stress test of the seed's Fig. 3 box
-without the hours a deposition of 10^5 spheres would take; it has about 3
-contacts per sphere where a random packing has 6 to 7.
+table1`` does (the same cache). 3D (dt = 1e-2, eps 1e-5), one of three
+packings per row (``packing``):
+
+- ``column``: the seed's 3D column (``column_collapse(3, n_grains=N,
+  width=0.2, bed="rough", mu=0.3)``, lattice packing, released at t = 0),
+  mid-flow: the steps from t = 0.1 s, recorded along one ``apgd`` trajectory
+  at eps 1e-5 (cached as ``benchmarks/column3d_solvers.py`` does), each
+  warm-started from the previous step's impulses for the backends that take
+  a warm start;
+- ``box``: a box at rest, ``static_box(3, n_grains=N, mu=0.3)`` settled by rain
+  deposition with ``apgd`` (cached), its first step from rest, cold;
+- ``jammed_box``: equal spheres on a simple cubic lattice touching each other
+  and the walls, at rest, cold: a lattice with about 3 contacts per sphere,
+  not a granular packing (kept for comparison with earlier tables).
+
+Potential contacts of ``column`` and ``box``: gap below 0.98 mean radii, the
+threshold that gives the seed's 6.75 per sphere (:data:`~cocd.bench.table1.D_SEED_3D`);
+``Nc_per_grain`` is ``Nc`` over the free grains.
 
 Each backend solves ``steps`` problems per N in a :class:`~cocd.bench.runner.Worker`
 (time limit, memory cap, one warm-up); the row's time is the mean wall time of
-the solves. For each backend and dimension, ``time = c N^k`` is fitted by
-least squares on the logarithms of the rows that were solved.
+the solves. For each backend, dimension and packing, ``time = c N^k`` is fitted
+by least squares on the logarithms of the rows that were solved.
 """
 
 from __future__ import annotations
@@ -30,18 +43,22 @@ from cocd.bench import select_solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import record_steps
-from cocd.builders import column_2d, jammed_box
+from cocd.bench.table1 import CHANNEL_WIDTH, D_SEED_3D, MU_3D
+from cocd.builders import column_2d, column_collapse, jammed_box, static_box
 from cocd.contacts import detect_contacts
 from cocd.errors import CocdError
 from cocd.problem import assemble
 
-__all__ = ["COLUMNS", "fit_exponent", "run"]
+__all__ = ["COLUMNS", "PACKINGS_3D", "fit_exponent", "run"]
 
 COLUMNS = [
     "dim",
+    "packing",
     "N",
     "Nc",
+    "Nc_per_grain",
     "solver",
+    "warm",
     "eps",
     "steps_ok",
     "iterations",
@@ -53,6 +70,10 @@ COLUMNS = [
 ]
 DT_2D, EPS_2D, T_START_2D = 1e-3, 1e-8, 0.11
 DT_3D, EPS_3D = 1e-2, 1e-5
+#: The 3D packings, in the order they are run.
+PACKINGS_3D = ("column", "box", "jammed_box")
+#: Start of the 3D column's timed steps (s): mid-flow.
+T_START_3D = 0.1
 
 
 def fit_exponent(n: Any, t: Any) -> tuple[float, float]:
@@ -77,16 +98,37 @@ def _problems_2d(n: int, steps: int, trajectory: str, progress: Callable[[str], 
         tol=EPS_2D,
         progress=progress,
     )
-    return seq.problems[:steps], float("nan")
+    return seq.problems[:steps], [None] * steps, seq.n_free, float("nan")
 
 
-def _problems_3d(n: int, steps: int) -> Any:
-    scene = jammed_box(n, dim=3, mu=0.3)
+def _problems_3d(packing: str, n: int, steps: int, progress: Callable[[str], None]) -> Any:
+    """``(problems, warm starts, free grains, detection and assembly seconds)``."""
+    if packing == "column":
+        make = partial(column_collapse, 3, n_grains=n, width=CHANNEL_WIDTH, bed="rough", mu=MU_3D)
+        seq = record_steps(
+            f"column3d-solvers-{n}",
+            make,
+            dt=DT_3D,
+            t_start=T_START_3D,
+            n_steps=steps,
+            solver="apgd",
+            tol=EPS_3D,
+            d_max=D_SEED_3D * float(make().radii.mean()),
+            progress=progress,
+        )
+        return seq.problems, seq.warm_starts, seq.n_free, float("nan")
+    if packing == "box":
+        progress(f"scaling: settling a box of {n} spheres by rain deposition (cached)")
+        scene = static_box(3, n_grains=n, mu=MU_3D, solver="apgd")
+        d_max: float | None = D_SEED_3D * float(scene.radii.mean())
+    else:
+        scene = jammed_box(n, dim=3, mu=MU_3D)
+        d_max = None
     start = time.perf_counter()
-    contacts = detect_contacts(scene)
+    contacts = detect_contacts(scene, d_max)
     problem = assemble(scene, contacts, DT_3D)
     elapsed = time.perf_counter() - start
-    return [problem] * steps, elapsed
+    return [problem] * steps, [None] * steps, scene.n_free, elapsed
 
 
 def run(
@@ -101,86 +143,112 @@ def run(
     trajectory: str = "ipm",
     progress: Callable[[str], None] = print,
     table1: Path | None = None,
+    packings: list[str] | None = None,
+    n3d_box: list[int] | None = None,
 ) -> pd.DataFrame:
     """Time every backend at every size; write ``scaling.{csv,md,png}`` and the fits.
 
     ``table1``: a ``table1.csv`` of ``cocd bench table1`` whose 2D rows (this
     machine's, the same column-collapse steps) join the table instead of
-    being solved again.
+    being solved again. ``packings``: the 3D packings (default all of
+    :data:`PACKINGS_3D`). ``n3d_box``: the box's sizes, when they are not
+    ``n3d`` (its rain deposition costs hours at 10^5 spheres).
     """
+    packings = list(PACKINGS_3D) if packings is None else list(packings)
+    unknown = sorted(set(packings) - set(PACKINGS_3D))
+    if unknown or not packings:
+        raise CocdError(
+            f"unknown 3D packing {', '.join(map(repr, unknown)) or '(none given)'}; "
+            f"choose from {', '.join(PACKINGS_3D)}"
+        )
     if steps < 1:
         raise CocdError(f"steps must be >= 1, got {steps}")
     if not (math.isfinite(time_limit) and time_limit > 0):
         raise CocdError(f"time limit must be > 0 seconds, got {time_limit!r}")
-    if any(n < 1 for n in [*n2d, *n3d]) or not (n2d or n3d or table1 is not None):
+    if any(n < 1 for n in [*n2d, *n3d, *(n3d_box or [])]) or not (n2d or n3d or table1 is not None):
         raise CocdError(f"sizes must be positive integers, got 2D {n2d} and 3D {n3d}")
     memory = default_memory_gb() if memory_gb is None else float(memory_gb)
     rows: list[dict[str, Any]] = _table1_rows(table1, solvers) if table1 is not None else []
+    cases = [(2, "column", n) for n in sorted(n2d)]
+    box_sizes = n3d if n3d_box is None else n3d_box
+    cases += [
+        (3, packing, n)
+        for packing in packings
+        for n in sorted(box_sizes if packing == "box" else n3d)
+    ]
+    names = {dim: select_solvers(solvers, dim) for dim in (2, 3)}
+    # A backend that ran out of time at one size is not tried at larger ones.
+    given_up: dict[tuple[int, str, str], str] = {}
     with Worker(memory_gb=memory) as worker:
-        for dim, sizes in ((2, n2d), (3, n3d)):
-            names = select_solvers(solvers, dim)
-            # A backend that ran out of time at one size is not tried at larger ones.
-            given_up: dict[str, str] = {}
+        for dim, packing, n in cases:
             eps = EPS_2D if dim == 2 else EPS_3D
-            for n in sorted(sizes):
-                if dim == 2:
-                    problems, detect = _problems_2d(n, steps, trajectory, progress)
-                else:
-                    problems, detect = _problems_3d(n, steps)
-                nc = float(np.mean([p.nc for p in problems]))
-                warm = warmup_problem(dim)
-                for name in names:
-                    if name in given_up:
-                        rows.append(_skipped_row(dim, n, nc, name, eps, steps, detect,
-                                                 given_up[name]))  # fmt: skip
-                        continue
-                    worker.restart()  # each row's peak memory is its own
-                    worker.solve_row(warm, name, eps, time_limit=60.0)
-                    answers = []
-                    for problem in problems:
-                        row = worker.solve_row(problem, name, eps, time_limit=time_limit)
-                        answers.append(row)
-                        if row["status"] in ("error", "time_limit"):
-                            break
-                    if answers[-1]["status"] == "time_limit":
-                        given_up[name] = f"skipped: time limit at N = {n}"
-                    ok = [a for a in answers if a["status"] in ("optimal", "inaccurate")]
-                    notes = sorted({str(a.get("note") or "") for a in answers} - {""})
-                    bad = [str(a["status"]) for a in answers if a["status"] != "optimal"]
-                    rows.append(
-                        {
-                            "dim": dim,
-                            "N": int(n),
-                            "Nc": nc,
-                            "solver": name,
-                            "eps": eps,
-                            "steps_ok": f"{sum(a['status'] == 'optimal' for a in answers)}/{steps}",
-                            "iterations": _mean(ok, "iterations"),
-                            "time_per_step_s": _mean(ok, "wall_s"),
-                            "detect_assemble_s": detect,
-                            "ccp_residual": _max(answers, "ccp_residual"),
-                            "peak_rss_gib": _max(answers, "peak_rss_gib"),
-                            "note": "; ".join([*bad, *notes])[:200],
-                        }
-                    )
-                    progress(
-                        f"scaling {dim}D N = {n} Nc = {nc:.0f} {name}: "
-                        f"{rows[-1]['time_per_step_s']:.3g} s/step, {rows[-1]['steps_ok']} optimal"
-                    )
-                    _write(pd.DataFrame(rows, columns=COLUMNS), out, steps, time_limit)
+            if dim == 2:
+                problems, warms, n_free, detect = _problems_2d(n, steps, trajectory, progress)
+            else:
+                problems, warms, n_free, detect = _problems_3d(packing, n, steps, progress)
+            nc = float(np.mean([p.nc for p in problems]))
+            base = {
+                "dim": dim, "packing": packing, "N": int(n), "Nc": nc,
+                "Nc_per_grain": nc / max(n_free, 1), "eps": eps,
+                "detect_assemble_s": detect,
+            }  # fmt: skip
+            warm = warmup_problem(dim)
+            for name in names[dim]:
+                start = "yes" if warms[0] is not None and solvers_warm(name) else "no"
+                key = (dim, packing, name)
+                if key in given_up:
+                    rows.append(_skipped_row(base, name, start, steps, given_up[key]))
+                    continue
+                worker.restart()  # each row's peak memory is its own
+                worker.solve_row(warm, name, eps, time_limit=60.0)
+                answers = []
+                for problem, ws in zip(problems, warms, strict=True):
+                    row = worker.solve_row(problem, name, eps, time_limit=time_limit, warm_start=ws)
+                    answers.append(row)
+                    if row["status"] in ("error", "time_limit"):
+                        break
+                if answers[-1]["status"] == "time_limit":
+                    given_up[key] = f"skipped: time limit at N = {n}"
+                ok = [a for a in answers if a["status"] in ("optimal", "inaccurate")]
+                notes = sorted({str(a.get("note") or "") for a in answers} - {""})
+                bad = [str(a["status"]) for a in answers if a["status"] != "optimal"]
+                rows.append(
+                    {
+                        **base,
+                        "warm": start,
+                        "solver": name,
+                        "steps_ok": f"{sum(a['status'] == 'optimal' for a in answers)}/{steps}",
+                        "iterations": _mean(ok, "iterations"),
+                        "time_per_step_s": _mean(ok, "wall_s"),
+                        "ccp_residual": _max(answers, "ccp_residual"),
+                        "peak_rss_gib": _max(answers, "peak_rss_gib"),
+                        "note": "; ".join([*bad, *notes])[:200],
+                    }
+                )
+                progress(
+                    f"scaling {dim}D {packing} N = {n} Nc = {nc:.0f} {name}: "
+                    f"{rows[-1]['time_per_step_s']:.3g} s/step, {rows[-1]['steps_ok']} optimal"
+                )
+                _write(pd.DataFrame(rows, columns=COLUMNS), out, steps, time_limit)
     table = pd.DataFrame(rows, columns=COLUMNS)
     _write(table, out, steps, time_limit)
     return table
 
 
+def solvers_warm(name: str) -> bool:
+    """Whether backend ``name`` takes a warm start."""
+    import solvers
+
+    return bool(solvers.get(name).warm_start)
+
+
 def _skipped_row(
-    dim: int, n: int, nc: float, name: str, eps: float, steps: int, detect: float, note: str
+    base: dict[str, Any], name: str, start: str, steps: int, note: str
 ) -> dict[str, Any]:
     nan = float("nan")
     return {
-        "dim": dim, "N": int(n), "Nc": nc, "solver": name, "eps": eps,
-        "steps_ok": f"0/{steps}", "iterations": nan, "time_per_step_s": nan,
-        "detect_assemble_s": detect, "ccp_residual": nan, "peak_rss_gib": nan, "note": note,
+        **base, "warm": start, "solver": name, "steps_ok": f"0/{steps}", "iterations": nan,
+        "time_per_step_s": nan, "ccp_residual": nan, "peak_rss_gib": nan, "note": note,
     }  # fmt: skip
 
 
@@ -190,7 +258,8 @@ def _table1_rows(path: Path, solvers: str | list[str] | None) -> list[dict[str, 
         t1 = pd.read_csv(path, keep_default_na=False, na_values=[""])
     except (OSError, ValueError) as exc:
         raise CocdError(f"cannot read Table 1 rows from {path}: {exc}") from None
-    missing = {"source", "dim", "N", "Nc", "solver", "eps", "steps_ok"} - set(t1.columns)
+    needed = {"source", "dim", "N", "Nc", "Nc_per_grain", "solver", "warm", "eps", "steps_ok"}
+    missing = needed - set(t1.columns)
     if missing:
         raise CocdError(f"{path} is not a table1.csv: columns {sorted(missing)} are missing")
     wanted = select_solvers(solvers, 2)
@@ -198,8 +267,11 @@ def _table1_rows(path: Path, solvers: str | list[str] | None) -> list[dict[str, 
     return [
         {
             "dim": 2,
+            "packing": "column",
             "N": int(r["N"]),
             "Nc": float(r["Nc"]),
+            "Nc_per_grain": float(r["Nc_per_grain"]),
+            "warm": str(r["warm"]),
             "solver": str(r["solver"]),
             "eps": float(r["eps"]),
             "steps_ok": str(r["steps_ok"]),
@@ -225,14 +297,15 @@ def _max(rows: list[dict[str, Any]], key: str) -> float:
 
 
 def fits(table: pd.DataFrame) -> pd.DataFrame:
-    """One row per (dim, solver): the fitted exponent and the sizes it covers."""
+    """One row per (dim, packing, solver): the fitted exponent and the sizes it covers."""
     out = []
-    for (dim, solver), group in table.groupby(["dim", "solver"], sort=True):
+    for (dim, packing, solver), group in table.groupby(["dim", "packing", "solver"], sort=False):
         k, c = fit_exponent(group["N"], group["time_per_step_s"])
         solved = group[np.isfinite(group["time_per_step_s"])]
         out.append(
             {
                 "dim": dim,
+                "packing": packing,
                 "solver": solver,
                 "exponent": k,
                 "coefficient": c,
@@ -253,10 +326,16 @@ def _write(table: pd.DataFrame, out: Path, steps: int, time_limit: float) -> Non
     title = "Scaling: time per step against N"
     intro = (
         f"2D: Table 1's column collapse, {steps} mid-collapse steps per N (t = 0.11 s, "
-        f"dt = 1e-3, eps 1e-8). 3D: `jammed_box(N, dim=3)` at rest (dt = 1e-2, eps 1e-5). "
-        f"Mean wall time per solve, cold start (no warm start); time limit {time_limit:g} s; "
-        "a backend that runs out of time is not tried at larger sizes. `peak_rss_gib`: "
-        "the solving process's peak resident memory (problem, backend and warm-up)."
+        f"dt = 1e-3, eps 1e-8). 3D (dt = 1e-2, eps 1e-5), `packing`: `column`, the seed's "
+        f"column (lattice, rough bed, 20 cm channel, mu 0.3) mid-flow, {steps} steps from "
+        f"t = {T_START_3D:g} s, warm-started from the previous step (`warm`); `box`, a "
+        "rain-deposited box at rest, its first step, cold; `jammed_box`, equal spheres on a "
+        "simple cubic lattice at rest (about 3 contacts per sphere: a lattice, not a "
+        "granular packing), cold. N counts the free grains of `box` and `jammed_box` and "
+        "the column's grains (its bed is glued); `Nc_per_grain` is Nc over the free grains. "
+        f"Mean wall time per solve; time limit {time_limit:g} s; a backend that runs out of "
+        "time is not tried at larger sizes of the same packing. `peak_rss_gib`: the solving "
+        "process's peak resident memory (problem, backend and warm-up)."
     )
     files = write_table(out, "scaling", table, title=title, intro=intro)
     fitted = fits(table)
@@ -268,12 +347,16 @@ def _write(table: pd.DataFrame, out: Path, steps: int, time_limit: float) -> Non
     )
     files.append(fit_md)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    marks = {"column": "o-", "box": "s--", "jammed_box": "^:"}
     for ax, dim in zip(axes, (2, 3), strict=True):
         sub = table[table["dim"] == dim]
-        for solver, group in sub.groupby("solver"):
-            k = fitted[(fitted.dim == dim) & (fitted.solver == solver)]["exponent"]
-            label = f"{solver} (k = {float(k.iloc[0]):.2f})" if len(k) else str(solver)
-            ax.loglog(group["N"], group["time_per_step_s"], "o-", label=label)
+        for (packing, solver), group in sub.groupby(["packing", "solver"], sort=False):
+            k = fitted[
+                (fitted.dim == dim) & (fitted.packing == packing) & (fitted.solver == solver)
+            ]["exponent"]
+            name = f"{solver}, {packing}" if dim == 3 else str(solver)
+            label = f"{name} (k = {float(k.iloc[0]):.2f})" if len(k) else name
+            ax.loglog(group["N"], group["time_per_step_s"], marks.get(packing, "o-"), label=label)
         ax.set_title(f"{dim}D")
         ax.set_xlabel("N (grains)")
         ax.set_ylabel("time per step (s)")
