@@ -44,9 +44,18 @@ app.add_typer(export_app, name="export")
 console = Console(soft_wrap=True)
 
 
+#: Exit status of a command whose input was wrong or whose work failed.
+EXIT_ERROR = 2
+#: Exit status after Ctrl-C (128 + SIGINT, as shells report it).
+EXIT_INTERRUPTED = 130
+#: Exit status of ``cocd problem solve`` when the backend answered but not to the
+#: tolerance (status ``max_iter``, ``inaccurate`` or ``time_limit``).
+EXIT_NOT_SOLVED = 3
+
+
 def _fail(exc: Exception) -> None:
     typer.echo(f"error: {exc}", err=True)
-    raise typer.Exit(code=2)
+    raise typer.Exit(code=EXIT_ERROR)
 
 
 @app.callback(invoke_without_command=True)
@@ -83,6 +92,10 @@ def run(
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue the run in --out from its last frame.")
     ] = False,
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="Replace a run already in --out (and its stats and plots)."),
+    ] = False,
     fallback: Annotated[
         str | None,
         typer.Option(
@@ -98,6 +111,8 @@ def run(
     from cocd.config import DEFAULT_CONFIG, build_scene, load_config, parse_config
     from cocd.runs import run as run_scene
 
+    display: _ProgressDisplay | None = None
+    folder: Path | None = None
     try:
         if scene is None:
             config, name, text = parse_config(DEFAULT_CONFIG, "default scene"), "default", ""
@@ -113,6 +128,10 @@ def run(
         }
         if fallback is not None:
             overrides["fallback"] = [name for name in fallback.split(",") if name]
+        if steps is not None and until is not None:
+            raise CocdError("give --steps or --until, not both")
+        if resume and force:
+            raise CocdError("give --resume or --force, not both")
         if steps is not None:
             overrides["until"] = None
         elif until is not None:
@@ -126,7 +145,8 @@ def run(
             registry.get(backend)  # an unknown backend fails before any work
         folder = out if out is not None else Path("cocd-runs") / name
         source = str(scene) if scene is not None else "default scene"
-        fresh = not (resume and (folder / "run.h5").exists())
+        _check_run_folder(folder, resume=resume, force=force)
+        fresh = not resume
         built = build_scene(config, source) if fresh else None  # bad parameters fail here
         rc = config.run
         console.print(
@@ -135,14 +155,22 @@ def run(
             f" -> {folder / 'run.h5'}",
             highlight=False,
         )
-        with _ProgressDisplay() as display:
+        display = _ProgressDisplay()
+        with display:
             summary = run_scene(
                 config, folder, resume=resume, scene_file=text, progress=display.update,
-                source=source, scene=built,
+                source=source, scene=built, force=force,
             )  # fmt: skip
     except CocdError as exc:
         _fail(exc)
         return
+    except KeyboardInterrupt:
+        given = dict(
+            solver=solver, tol=tol, until=until, steps=steps, dt=dt, frame_every=frame_every,
+            out=out, fallback=fallback,
+        )  # fmt: skip
+        _interrupted(folder, scene, given, display.reached if display is not None else None)
+        raise typer.Exit(code=EXIT_INTERRUPTED) from None
     from cocd.io.runfile import RunFile
 
     with RunFile(summary.path) as rf:
@@ -160,30 +188,107 @@ def run(
         )
 
 
+def _interrupted(
+    folder: Path | None, scene: Path | None, given: dict[str, Any], reached: Any
+) -> None:
+    """Say, after Ctrl-C, where the run stopped, what it kept and how to go on."""
+    import shlex
+
+    from cocd.io.runfile import RunFile
+    from cocd.runs import RUN_FILE
+
+    if folder is None:
+        typer.echo("interrupted before the run started; nothing was written.", err=True)
+        return
+    path = folder / RUN_FILE
+    where = f"step {reached.step} (t = {reached.t:.4g} s)" if reached is not None else "the start"
+    kept = "nothing was written"
+    if path.exists():
+        try:
+            with RunFile(path) as rf:
+                last = rf.frame(-1)
+                kept = f"{path} keeps frames up to step {last.step} (t = {last.time:.4g} s)"
+        except CocdError:
+            kept = f"{path} cannot be read"
+    parts = ["cocd", "run"] + ([str(scene)] if scene is not None else [])
+    for key, value in given.items():
+        if value is not None:
+            parts += [
+                f"--{key.replace('_', '-')}",
+                f"{value:g}" if isinstance(value, float) else str(value),
+            ]
+    typer.echo(f"interrupted at {where}; {kept}.", err=True)
+    if path.exists():
+        typer.echo(f"continue with: {shlex.join([*parts, '--resume'])}", err=True)
+
+
+def _check_run_folder(folder: Path, *, resume: bool, force: bool) -> None:
+    """Refuse, before any work, a run folder that would lose a run or cannot be written."""
+    from cocd.runs import RUN_FILE, existing_run
+
+    path = folder / RUN_FILE
+    if folder.exists() and not folder.is_dir():
+        raise CocdError(f"--out {folder} is a file, not a folder")
+    if resume and not path.exists():
+        raise CocdError(
+            f"no run to resume in {folder} (no {RUN_FILE}); leave out --resume to start one"
+        )
+    if path.exists() and not (resume or force):
+        raise CocdError(
+            f"{folder} already holds a run ({existing_run(path)}): "
+            "--resume continues it, --force replaces it"
+        )
+    writable_folder(folder, "--out")
+
+
+def writable_folder(folder: Path, what: str) -> None:
+    """Create ``folder`` (and its parents) or raise a one-line :class:`CocdError`."""
+    import tempfile
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".cocd-write-test-"):
+            pass
+    except FileExistsError:
+        raise CocdError(f"{what} {folder}: a file is in the way of the folder") from None
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise CocdError(f"{what} {folder} cannot be written: {reason}") from None
+
+
+def writable_file(path: Path, what: str) -> None:
+    """Check, before any work, that ``path`` can be written (its folder is created)."""
+    if path.is_dir():
+        raise CocdError(f"{what} {path} is a folder, not a file")
+    writable_folder(path.parent, what + " folder")
+
+
 class _ProgressDisplay:
-    """A rich progress bar on a terminal; a plain line every few seconds otherwise."""
+    """A rich progress bar on a terminal; a plain line every few seconds otherwise.
+
+    The time left is estimated from the steps after this call's first, whose
+    time includes compiling the numba kernels. The step count and the time
+    left come first, so a narrow terminal cuts the statistics, not them.
+    """
 
     EVERY = 5.0  # seconds between plain lines
 
-    def __init__(self) -> None:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeRemainingColumn,
-        )
+    def __init__(self, out: Console | None = None) -> None:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-        self.live = console.is_terminal
+        self.console = console if out is None else out
+        self.live = self.console.is_terminal
         self.last_line = -float("inf")
         self.task: Any = None
+        self.reached: Any = None  # the last step's record
+        self.first_elapsed: float | None = None
         self.bar = Progress(
             TextColumn("step"),
             MofNCompleteColumn(),
-            BarColumn(),
+            BarColumn(bar_width=16),
+            TextColumn("{task.fields[left]}"),
             TextColumn("{task.fields[info]}"),
-            TimeRemainingColumn(),
-            console=console,
+            console=self.console,
             disable=not self.live,
         )
 
@@ -194,23 +299,35 @@ class _ProgressDisplay:
     def __exit__(self, *exc: object) -> None:
         self.bar.__exit__(None, None, None)
 
+    def left(self, p: Any) -> str:
+        """The time left, from the rate of this call's steps after its first."""
+        if self.first_elapsed is None or p.steps_this_call < 2:
+            return "ETA ..."
+        seconds = (p.elapsed - self.first_elapsed) / (p.steps_this_call - 1) * (p.total - p.done)
+        if seconds >= 5400:
+            return f"{seconds / 3600:.1f} h left"
+        if seconds >= 120:
+            return f"{seconds / 60:.0f} min left"
+        return f"{seconds:.0f} s left"
+
     def update(self, p: Any) -> None:
         r = p.record
-        rate = p.steps_this_call / p.elapsed if p.elapsed > 0 else float("nan")
-        info = (
-            f"t {r.t:.4f} s  Nc {r.nc}  it {r.iterations}  ccp {r.ccp_residual:.1e}  "
-            f"{rate:.2f} steps/s"
-        )
+        self.reached = r
+        if self.first_elapsed is None:
+            self.first_elapsed = p.elapsed
+        left = self.left(p)
+        info = f"t {r.t:.4f} s  Nc {r.nc}  it {r.iterations}  ccp {r.ccp_residual:.1e}"
         if self.live:
             if self.task is None:
-                self.task = self.bar.add_task("run", total=p.total, completed=p.done, info=info)
-            self.bar.update(self.task, completed=p.done, total=p.total, info=info)
+                self.task = self.bar.add_task(
+                    "run", total=p.total, completed=p.done, info=info, left=left
+                )
+            self.bar.update(self.task, completed=p.done, total=p.total, info=info, left=left)
             return
         now = time.perf_counter()
         if now - self.last_line >= self.EVERY or p.done == p.total:
             self.last_line = now
-            left = (p.total - p.done) / rate if rate > 0 else float("nan")
-            console.print(f"step {p.done}/{p.total}  {info}  {left:.0f} s left", highlight=False)
+            self.console.print(f"step {p.done}/{p.total}  {left}  {info}", highlight=False)
 
 
 @export_app.command("vtu")
@@ -294,6 +411,13 @@ def sweep_command(
         f".csv and .md",
         highlight=False,
     )
+    if summary.failed:
+        typer.echo(
+            f"{summary.failed} of {summary.cells} cells failed: their rows hold status "
+            "'error' and the message",
+            err=True,
+        )
+        raise typer.Exit(code=EXIT_NOT_SOLVED)
 
 
 class _SweepDisplay:
@@ -379,11 +503,18 @@ def problem_solve(
         ),
     ] = None,
 ) -> None:
-    """Solve one problem with one backend; report cocd's residuals and the natural map error."""
+    """Solve one problem with one backend; report cocd's residuals and the natural map error.
+
+    Exit status: 0 when the backend reports ``optimal``, 3 when it answered but
+    not to the tolerance (``max_iter``, ``inaccurate``, ``time_limit``), 2 on an
+    error (a bad file or option, a failed backend).
+    """
     from cocd.external import solve_external
     from cocd.io import read_problem
 
     try:
+        if save_solution is not None:
+            writable_file(save_solution, "--save-solution")
         problem = read_problem(file)
         record, answer = solve_external(problem, solver, tol, time_limit=time_limit)
     except CocdError as exc:
@@ -399,9 +530,13 @@ def problem_solve(
             np.savez(save_solution, **arrays)
     if as_json:
         typer.echo(json.dumps(_jsonable(record)))
-        return
-    for key, value in record.items():
-        shown = f"{value:.3e}" if isinstance(value, float) else str(value)
-        console.print(f"{key:>18}: {shown}", highlight=False)
-    if save_solution is not None:
-        console.print(f"wrote {save_solution}")
+    else:
+        for key, value in record.items():
+            shown = f"{value:.3e}" if isinstance(value, float) else str(value)
+            console.print(f"{key:>18}: {shown}", highlight=False)
+        if save_solution is not None:
+            console.print(f"wrote {save_solution}")
+    status = str(record.get("status", ""))
+    if status != "optimal":
+        typer.echo(f"not solved to tol {tol:g}: status {status}", err=True)
+        raise typer.Exit(code=EXIT_NOT_SOLVED if answer is not None else EXIT_ERROR)

@@ -40,6 +40,7 @@ __all__ = [
     "STATIC_VELOCITY",
     "MassProfile",
     "bed_energy_ratio",
+    "bed_surface",
     "front_position",
     "granular_volume",
     "kinetic_energy",
@@ -158,6 +159,29 @@ def front_position(
     _flow_axis(axis, x.shape[1])
     main = _main_mass(x, r, sel, _gap(gap, r, sel))
     return float(np.max(x[main, axis] + r[main]))
+
+
+def bed_surface(scene: Scene, x_bins: ArrayLike) -> FloatArray:
+    """Height of the bed's surface per bin before a flow (m, absolute z): what it flows over.
+
+    For a scene of :func:`cocd.builders.column_collapse` (groups ``bed``,
+    ``layer``, ``column``): the top of the erodible layer where there is one,
+    else the top of the glued bed grains, else the floor (0). For :func:`surface_front`.
+    """
+    edges = _edges(x_bins, "x_bins")
+    groups = scene.groups
+    r = scene.radii
+    bed = groups.get("bed", slice(0, 0))
+    x = scene.positions
+    base = float(np.max(x[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
+    surface = np.full(edges.size - 1, base)
+    layer = groups.get("layer", slice(0, 0))
+    if layer.stop > layer.start:
+        mask = np.zeros(scene.n_grains, dtype=bool)
+        mask[layer] = True
+        top = mass_profile(x, r, x_bins=edges, mask=mask, connected=False)
+        surface = np.where(np.isfinite(top.height), top.height, base)
+    return surface
 
 
 def surface_front(

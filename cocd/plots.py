@@ -77,19 +77,43 @@ def _profiles(rf: RunFile, plt: Any) -> tuple[Any, Any]:
 
 
 def _front(rf: RunFile, plt: Any) -> tuple[Any, Any]:
-    from cocd.measure import front_position
+    """The front against time, measured as fits the scene.
+
+    Over an erodible layer every grain touches every other through the layer,
+    so the foremost grain of the connected mass is the layer's end: the front
+    is then where the free surface stands above the layer's initial top
+    (:func:`~cocd.measure.surface_front`, bins of one mean diameter). Otherwise
+    it is the foremost surface of the main mass (:func:`~cocd.measure.front_position`).
+    """
+    from cocd.measure import bed_surface, front_position, surface_front
 
     free = _free(rf)
+    scene0 = rf.scene(0)
+    layer = scene0.groups.get("layer", slice(0, 0))
+    erodible = layer.stop > layer.start
+    r = rf.radii
+    back = float(np.min(scene0.positions[free, 0] - r[free]))
+    if erodible:
+        d_mean = 2.0 * float(r[free].mean())
+        x_end = float(np.max(scene0.positions[:, 0] + r))
+        edges = np.arange(back, x_end + d_mean, d_mean)
+        surface = bed_surface(scene0, edges)
     times, fronts = [], []
     for k in range(rf.n_frames):
         frame = rf.frame(k)
         times.append(frame.time)
-        fronts.append(front_position(frame.positions, rf.radii, mask=free))
-    back = float(np.min(rf.frame(0).positions[free, 0] - rf.radii[free]))
+        if erodible:
+            fronts.append(
+                surface_front(frame.positions, r, x_bins=edges, surface=surface, mask=free)
+            )
+        else:
+            fronts.append(front_position(frame.positions, r, mask=free))
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.plot(times, np.asarray(fronts) - back, "o-", ms=3)
     ax.set_xlabel("t (s)")
-    ax.set_ylabel("front position from the back of the mass (m)")
+    how = "free surface above the erodible layer" if erodible else "foremost grain of the mass"
+    ax.set_ylabel("front from the back of the mass (m)")
+    ax.set_title(f"front: {how}", fontsize=9)
     ax.grid(True, alpha=0.3)
     return fig, ax
 

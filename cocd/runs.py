@@ -24,10 +24,13 @@ from cocd.io.runfile import RunFile, RunFileError, RunWriter
 from cocd.scene import Scene
 from cocd.stepper import StepRecord
 
-__all__ = ["RUN_FILE", "Progress", "RunSummary", "run"]
+__all__ = ["DERIVED_FILES", "RUN_FILE", "Progress", "RunSummary", "existing_run", "run"]
 
 #: Name of the run file in the output folder.
 RUN_FILE = "run.h5"
+#: Files that cocd writes beside a run file from it (statistics, default plots):
+#: replaced with the run (``force=True``), since they would describe the old one.
+DERIVED_FILES = ("stats.csv", "profiles.png", "front.png", "energy.png", "stats.png")
 
 #: Keys of the resolved configuration that may change when a run is resumed: the end,
 #: and the iteration cap (a step that hit the cap failed and was not written, so a run
@@ -64,19 +67,32 @@ def run(
     progress: Callable[[Progress], None] | None = None,
     source: str = "scene file",
     scene: Scene | None = None,
+    force: bool = False,
 ) -> RunSummary:
     """Advance the configured scene to its end, writing ``out/run.h5``.
 
-    Without ``resume`` an existing run file in ``out`` is replaced. With it,
-    the run continues from the file's last complete frame; the file's
-    configuration must be the same as ``config`` except ``until``/``steps``
-    (a finished run resumed with a later ``until`` goes on). With ``resume``
-    and no run file in ``out``, the run starts afresh. ``scene``: the scene
-    the configuration builds, if already built (it is advanced in place).
+    An existing run file in ``out`` is never replaced unless ``force`` is
+    given: then it goes, with the files cocd derived from it
+    (:data:`DERIVED_FILES`). With ``resume`` the run continues from the file's
+    last complete frame; the file's configuration must be the same as
+    ``config`` except ``until``/``steps`` (a finished run resumed with a later
+    ``until`` goes on). With ``resume`` and no run file in ``out``, the run
+    starts afresh. ``scene``: the scene the configuration builds, if already
+    built (it is advanced in place).
     """
     path = Path(out) / RUN_FILE
     resolved = config.resolved()
     rc = config.run
+    if resume and force:
+        raise RunFileError("give resume or force, not both")
+    if path.exists() and not resume:
+        if not force:
+            raise RunFileError(
+                f"{Path(out)} already holds a run ({existing_run(path)}): "
+                "--resume continues it, --force replaces it"
+            )
+        for name in (RUN_FILE, *DERIVED_FILES):
+            (Path(out) / name).unlink(missing_ok=True)
     if resume and path.exists():
         with RunFile(path) as old:
             _check_same(old.config, resolved, path)
@@ -88,6 +104,12 @@ def run(
             previous = (last.keys, last.impulse[:, : rf.contact_dim]) if last.step > 0 else None
             frames = rf.n_frames
         start_step = last.step
+        if config.n_steps() < start_step:
+            writer.close()
+            raise RunFileError(
+                f"{Path(out)} already holds {start_step} steps to t = {last.time:.4g} s, past "
+                f"the end asked for ({config.n_steps()} steps): give a later until, or more steps"
+            )
     else:
         if scene is None:
             scene = build_scene(config, source)
@@ -113,6 +135,18 @@ def run(
     finally:
         writer.close()
     return RunSummary(path, stepper.step_count, frames, start_step, wall)
+
+
+def existing_run(path: Path) -> str:
+    """A few words on the run file at ``path``: its steps and end time, or that it is damaged."""
+    try:
+        with RunFile(path) as rf:
+            stats = rf.stats()
+            if len(stats) == 0:
+                return "no step yet"
+            return f"{int(stats.step.iloc[-1])} steps to t = {float(stats.t.iloc[-1]):.4g} s"
+    except (RunFileError, OSError, KeyError, AttributeError):
+        return "a run file that cannot be read"
 
 
 def _check_same(old: dict[str, Any], new: dict[str, Any], path: Path) -> None:

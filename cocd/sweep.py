@@ -156,8 +156,15 @@ def parse_sweep(data: Any, source: str = "sweep file") -> SweepSpec:
     unknown = set(spec.grid["scene"]) - set(spec.scenes)
     if unknown:
         raise ConfigError(f"{source}: grid.scene: {sorted(unknown)} not among the [scenes] tables")
-    for cell in cells_of(spec):  # every cell is a valid scene file
-        parse_config(cell.config, f"{source}: cell {cell.coords}")
+    import solvers
+
+    for cell in cells_of(spec):  # every cell is a valid scene file, with known backends
+        config = parse_config(cell.config, f"{source}: cell {cell.coords}")
+        for backend in (config.run.solver, *config.run.fallback):
+            try:
+                solvers.get(backend)
+            except CocdError as exc:
+                raise ConfigError(f"{source}: cell {cell.coords}: {exc}") from None
     return spec
 
 

@@ -75,12 +75,23 @@ def solve(
     **options
         Passed to the backend.
 
+    Options written in the name (``"pgs:max_iter=3"``, see :func:`resolve`)
+    win over the same options given as arguments, ``tol``, ``max_iter``,
+    ``time_limit`` and ``verbose`` included: the name is the most specific
+    statement of what is wanted.
+
     Returns
     -------
     Solution
     """
     info, name_options = resolve(solver)
-    options = {**info.options, **name_options, **options}
+    if "warm_start" in name_options:
+        raise ProblemError(f"solver {solver!r}: a warm start cannot be given in a solver name")
+    tol = name_options.pop("tol", tol)
+    max_iter = name_options.pop("max_iter", max_iter)
+    time_limit = name_options.pop("time_limit", time_limit)
+    verbose = bool(name_options.pop("verbose", verbose))
+    options = {**info.options, **options, **name_options}
     if info.linear_cones_only and not problem.is_qp and "facets" not in options:
         raise ProblemError(
             f"solver {solver!r} takes linear cones only, and this 3D frictional problem has "

@@ -168,7 +168,8 @@ def test_a_run_that_fails_keeps_what_it_wrote(doubles, tmp_path):
         assert list(rf.steps) == [0, 1, 2]
     # With a fallback on the command line the same run completes and says so.
     CALLS["n"] = 0
-    result = runner.invoke(app, ["run", str(scene), "--out", str(out), "--fallback", "clarabel"])
+    args = ["run", str(scene), "--out", str(out), "--fallback", "clarabel", "--force"]
+    result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     with RunFile(out / "run.h5") as rf:
         stats = rf.stats()

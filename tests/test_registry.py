@@ -142,3 +142,15 @@ def test_suite_wide_check_catches_a_wrong_answer(clean_registry):
     stepper = Stepper(stack(2, dim=2), 1e-3, solver="copy")  # answers p = 0: grains fall through
     with pytest.raises(AssertionError, match=r"copy: ccp_residual 1 > 10 tol"):
         stepper.step()
+
+
+@pytest.mark.parametrize("name", ["clarabel", "pgs", "apgd"])
+def test_an_option_in_the_name_wins_over_the_same_argument(name):
+    # The README's form `--solver clarabel:max_iter=3` beside the run's own max_iter.
+    stepper = Stepper(stack(6, dim=2), 1e-3)
+    stepper.run(2)
+    problem = stepper.problem
+    sol = solvers.solve(problem, f"{name}:max_iter=1:tol=1e-14", tol=1e-3, max_iter=500)
+    assert sol.iterations == 1 and sol.status == "max_iter"
+    with pytest.raises(ProblemError, match="a warm start cannot be given in a solver name"):
+        solvers.solve(problem, f"{name}:warm_start=1")

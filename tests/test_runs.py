@@ -345,3 +345,29 @@ def test_unknown_plot_and_missing_run_file_are_named(tmp_path):
     result = runner.invoke(app, ["plot", str(tmp_path / "run.h5"), "colours"])
     assert result.exit_code == 2
     assert "unknown plot 'colours'; one of profiles, front, energy, stats" in result.output
+
+
+def test_front_plot_over_an_erodible_bed_follows_the_flow_not_the_layer(tmp_path):
+    # The README's example: a column on a 1 cm erodible layer 4 R0 long. The main
+    # mass's foremost grain is the layer's end (0.8 m); the flow's front starts at
+    # the column's foot (R0 = 0.2 m) and moves on smoothly.
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cocd.plots import _front
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "column_collapse.toml"
+    args = ["run", str(example), "--until", "0.1", "--out", str(tmp_path)]
+    assert runner.invoke(app, args).exit_code == 0
+    with RunFile(tmp_path / "run.h5") as rf:
+        fig, ax = _front(rf, plt)
+        d = 2.0 * float(rf.radii.mean())
+    plt.close(fig)
+    front = np.asarray(ax.lines[0].get_ydata())
+    assert front[0] == pytest.approx(0.2, abs=2 * d)
+    assert (front < 0.4).all()
+    assert (np.diff(front) >= -1.01 * d).all()
+    assert front[-1] > front[0] + d
+    assert "erodible" in ax.get_title()

@@ -166,6 +166,8 @@ def test_interrupted_sweep_runs_only_the_missing_cells(tmp_path, client):
          'scene = ["a"]\ntol = [-1.0]\n', "run.tol: Input should be greater than 0"),  # fmt: skip
         ('steps = 1\nspeed = 2\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n',
          "speed: unknown key"),  # fmt: skip
+        ('steps = 1\n[scenes.a]\nbuilder = "stack"\nparams = { n_grains = 2 }\n[grid]\n'
+         'scene = ["a"]\nsolver = ["clarabel", "nope"]\n', "cell .*'solver': 'nope'.*unknown solver 'nope'"),  # fmt: skip
     ],
 )
 def test_bad_sweep_files_are_named(tmp_path, text, message):
@@ -190,3 +192,19 @@ def test_grid_expands_params_axes():
     assert len(cells) == 4 and len({c.id for c in cells}) == 4
     assert [c.config["params"]["n_grains"] for c in cells] == [10, 10, 20, 20]
     assert [c.config["run"]["dt"] for c in cells] == [1e-3, 5e-4, 1e-3, 5e-4]
+
+
+def test_a_sweep_with_failed_cells_exits_non_zero(tmp_path):
+    path = tmp_path / "fails.toml"
+    path.write_text(
+        'name = "fails"\nsteps = 3\n[scenes.c]\nbuilder = "column_2d"\n'
+        'params = { n_grains = 30 }\n[grid]\nscene = ["c"]\n'
+        'solver = ["clarabel", "clarabel:max_iter=1"]\n'
+    )
+    spec = load_sweep(path)
+    for cell in cells_of(spec):  # run here, so that the command only aggregates
+        run_cell(cell, str(tmp_path / "out" / "cells"))
+    result = runner.invoke(app, ["sweep", str(path), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 3
+    assert "2 cells: 0 run, 2 already done, 1 failed" in result.stdout
+    assert "1 of 2 cells failed" in result.stderr

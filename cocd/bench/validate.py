@@ -187,7 +187,9 @@ def collapse_series(
             )
 
     try:
-        summary = run(config, folder, resume=not fresh, progress=tick, source=str(folder))
+        summary = run(
+            config, folder, resume=not fresh, force=fresh, progress=tick, source=str(folder)
+        )
     except SolverError as exc:
         raise CocdError(
             f"{label}: {exc}; the run file {folder / RUN_FILE} keeps the frames before it "
@@ -207,7 +209,7 @@ def _measure(
     dt: float,
 ) -> CollapseSeries:
     from cocd.io.runfile import RunFile
-    from cocd.measure import mass_profile, surface_front
+    from cocd.measure import bed_surface, mass_profile, surface_front
 
     with RunFile(path) as rf:
         scene0 = rf.scene(0)
@@ -222,12 +224,7 @@ def _measure(
             x_max = float(np.max(scene0.positions[:, 0] + r))
         width = d_mean if bin_width is None else bin_width
         edges = np.arange(0.0, x_max + width, width)
-        # The bed's surface before the flow: the erodible layer's top, else the bed's.
-        layer = free & ~column
-        surface = np.full(len(edges) - 1, base)
-        if layer.any():
-            top = mass_profile(scene0.positions, r, x_bins=edges, mask=layer, connected=False)
-            surface = np.where(np.isfinite(top.height), top.height, base)
+        surface = bed_surface(scene0, edges)  # the erodible layer's top, else the bed's
         times = rf.times.copy()
         front = np.array(
             [

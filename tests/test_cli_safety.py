@@ -1,0 +1,177 @@
+"""The command line never loses a run or a computed answer, and says why in one line."""
+
+from __future__ import annotations
+
+import pandas as pd
+from typer.testing import CliRunner
+
+from cocd.cli import app
+from cocd.io.runfile import RunFile
+
+runner = CliRunner()
+
+
+def _run(*args: str):
+    return runner.invoke(app, ["run", *args])
+
+
+def _steps(folder) -> int:
+    with RunFile(folder / "run.h5") as rf:
+        return len(rf.stats())
+
+
+def test_a_finished_run_is_never_replaced_without_force(tmp_path):
+    out = tmp_path / "runs"
+    assert _run("--steps", "3", "--out", str(out)).exit_code == 0
+    assert runner.invoke(app, ["plot", str(out / "run.h5"), "stats"]).exit_code == 0
+    (out / "notes.txt").write_text("mine")
+    result = _run("--steps", "2", "--out", str(out))
+    assert result.exit_code == 2
+    assert result.output.strip() == (
+        f"error: {out} already holds a run (3 steps to t = 0.003 s): "
+        "--resume continues it, --force replaces it"
+    )
+    assert _steps(out) == 3 and (out / "stats.png").exists()
+    result = _run("--steps", "2", "--out", str(out), "--force")
+    assert result.exit_code == 0, result.output
+    assert _steps(out) == 2
+    assert len(pd.read_csv(out / "stats.csv")) == 2
+    # The old run's plot went with it; the user's own file stays.
+    assert not (out / "stats.png").exists() and (out / "notes.txt").read_text() == "mine"
+
+
+def test_resume_needs_a_run_and_a_later_end(tmp_path):
+    result = _run("--steps", "2", "--out", str(tmp_path / "empty"), "--resume")
+    assert result.exit_code == 2
+    assert "error: no run to resume in" in result.output and "leave out --resume" in result.output
+    assert not (tmp_path / "empty" / "run.h5").exists()
+    out = tmp_path / "done"
+    assert _run("--steps", "3", "--out", str(out)).exit_code == 0
+    result = _run("--until", "0.001", "--out", str(out), "--resume")
+    assert result.exit_code == 2
+    assert "already holds 3 steps to t = 0.003 s, past the end asked for (1 steps)" in result.output
+    assert _steps(out) == 3
+    # Resuming a finished run to its own end is not a mistake: nothing to do.
+    assert _run("--steps", "3", "--out", str(out), "--resume").exit_code == 0
+    assert _steps(out) == 3
+
+
+def test_contradictory_options_are_refused_before_any_work(tmp_path):
+    out = tmp_path / "x"
+    result = _run("--steps", "2", "--until", "0.1", "--out", str(out))
+    assert result.exit_code == 2
+    assert result.output.strip() == "error: give --steps or --until, not both"
+    result = _run("--steps", "2", "--out", str(out), "--resume", "--force")
+    assert result.output.strip() == "error: give --resume or --force, not both"
+    assert not out.exists()
+
+
+def test_an_output_folder_that_cannot_be_made_is_refused_up_front(tmp_path):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("not a folder")
+    result = _run("--steps", "2", "--out", str(blocker))
+    assert result.exit_code == 2
+    assert result.output.strip() == f"error: --out {blocker} is a file, not a folder"
+    result = _run("--steps", "2", "--out", str(blocker / "sub"))
+    assert result.exit_code == 2
+    assert result.output.startswith(f"error: --out {blocker / 'sub'} cannot be written")
+    assert "Traceback" not in result.output
+    assert blocker.read_text() == "not a folder"
+
+
+def test_problem_solve_checks_its_output_first_and_exits_on_what_it_got(tmp_path):
+    import json
+
+    import numpy as np
+
+    from cocd import Stepper, column_2d
+
+    stepper = Stepper(column_2d(60, mu=0.4), 1e-3, fclib_dir=tmp_path, fclib_steps=[8])
+    stepper.run(9)
+    problem = str(tmp_path / "step_000008.hdf5")
+    # A folder that does not exist yet is created; the answer is kept.
+    saved = tmp_path / "missing" / "dir" / "a.npz"
+    result = runner.invoke(app, ["problem", "solve", problem, "--save-solution", str(saved)])
+    assert result.exit_code == 0, result.output
+    assert np.load(saved)["r"].size > 0
+    # A place that cannot hold the file is refused before the solve.
+    result = runner.invoke(app, ["problem", "solve", problem, "--save-solution", str(tmp_path)])
+    assert result.exit_code == 2
+    assert result.output.strip() == f"error: --save-solution {tmp_path} is a folder, not a file"
+    blocked = saved / "b.npz"  # under a file
+    result = runner.invoke(app, ["problem", "solve", problem, "--save-solution", str(blocked)])
+    assert result.exit_code == 2
+    assert result.output.strip() == (
+        f"error: --save-solution folder {saved}: a file is in the way of the folder"
+    )
+    # Answered but not to the tolerance: status 3, and it says so.
+    args = ["problem", "solve", problem, "--solver", "pgs:max_iter=2", "--tol", "1e-12", "--json"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 3
+    assert json.loads(result.stdout)["status"] == "max_iter"
+    assert "not solved to tol 1e-12: status max_iter" in result.stderr
+
+
+def _progress(done: int, total: int, elapsed: float, this_call: int):
+    from cocd.runs import Progress
+    from cocd.stepper import StepRecord
+
+    fields = {name: 0 for name in StepRecord.__dataclass_fields__}
+    fields.update(step=done, t=done * 1e-3, solver="ipm", status="optimal", failures="")
+    return Progress(StepRecord(**fields), done, total, elapsed, this_call)
+
+
+def test_time_left_leaves_out_the_first_step_and_fits_80_columns():
+    import io
+
+    from rich.console import Console
+
+    from cocd.cli import _ProgressDisplay
+
+    # The first step took 10 s (compiling), the next ones 0.1 s each: 97 left.
+    display = _ProgressDisplay(Console(file=io.StringIO(), width=80))
+    display.update(_progress(1, 100, 10.0, 1))
+    assert display.left(_progress(1, 100, 10.0, 1)) == "ETA ..."
+    assert display.left(_progress(3, 100, 10.2, 3)) == "10 s left"
+    # On a terminal 80 columns wide the count and the time left stay in view.
+    screen = io.StringIO()
+    live = _ProgressDisplay(Console(file=screen, width=80, force_terminal=True))
+    with live:
+        for k in range(1, 4):
+            live.update(_progress(k, 300, 10.0 + 0.1 * (k - 1), k))
+    import re
+
+    text = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", screen.getvalue())
+    last = [line for line in text.splitlines() if "/300" in line][-1]
+    assert "3/300" in last and "30 s left" in last
+
+
+def test_ctrl_c_in_a_terminal_says_where_and_how_to_resume(tmp_path):
+    import re
+    import sys
+
+    import pexpect
+
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "cocd", "run", "--steps", "5000", "--frame-every", "2"]
+    cmd += ["--out", str(out)]
+    child = pexpect.spawn(cmd[0], cmd[1:], encoding="utf-8", timeout=120, dimensions=(24, 80))
+    while True:  # a few steps in, a few frames written
+        child.expect(r"(\d+)/5000")
+        if int(child.match.group(1)) >= 6:
+            break
+    child.sendintr()
+    child.expect(r"interrupted at step (\d+) \(t = [0-9.e-]+ s\); (\S+) keeps frames up to step (\d+)")
+    reached, kept = int(child.match.group(1)), int(child.match.group(3))
+    assert child.match.group(2) == str(out / "run.h5") and 0 < kept <= reached
+    child.expect(r"continue with: (.*) --resume")
+    command = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", child.match.group(1)).strip()
+    assert command == f"cocd run --steps 5000 --frame-every 2 --out {out}"
+    child.expect(pexpect.EOF)
+    child.close()
+    assert child.exitstatus == 130
+    # The run file is whole: the run goes on from its last frame.
+    result = _run("--steps", str(kept + 2), "--frame-every", "2", "--out", str(out), "--resume")
+    assert result.exit_code == 0, result.output
+    assert f"resumed from step {kept}" in result.output
+    assert _steps(out) == kept + 2
