@@ -175,3 +175,22 @@ def test_ctrl_c_in_a_terminal_says_where_and_how_to_resume(tmp_path):
     assert result.exit_code == 0, result.output
     assert f"resumed from step {kept}" in result.output
     assert _steps(out) == kept + 2
+
+
+def test_the_readmes_problem_solve_example_is_solved(tmp_path):
+    import json
+    import re
+    from pathlib import Path
+
+    import pytest
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    line = re.search(r"cocd problem solve (fc2d_\S+) (.*?) --json", readme)
+    assert line is not None
+    path = Path(__file__).resolve().parents[2] / "shared" / "data" / "external" / line.group(1)
+    if not path.exists():
+        pytest.skip(f"{path} is not here")
+    args = ["problem", "solve", str(path), *line.group(2).split(), "--json"]
+    result = runner.invoke(app, [*args, "--save-solution", str(tmp_path / "answer.npz")])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["status"] == "optimal"
