@@ -353,20 +353,138 @@ def export_vtu_command(
 @app.command("plot")
 def plot_command(
     run_file: Annotated[Path, typer.Argument(help="A run file (run.h5) of `cocd run`.")],
-    kind: Annotated[str, typer.Argument(help="profiles, front, energy or stats.")],
+    kind: Annotated[str, typer.Argument(help="profiles, front, energy, stats, snapshot or movie.")],
     out: Annotated[
-        Path | None, typer.Option("--out", help="PNG file (default: KIND.png beside RUN_FILE).")
+        Path | None,
+        typer.Option(
+            "--out", help="Output file (default: KIND.png beside RUN_FILE; movie.gif, or .mp4)."
+        ),
+    ] = None,
+    frame: Annotated[
+        int | None,
+        typer.Option("--frame", help="Frame of a snapshot (default the last; -1 the last)."),
     ] = None,
 ) -> None:
-    """Draw a figure of a run: mass profiles, front position, energies or step statistics."""
+    """Draw a figure of a run: profiles, front, energies, step statistics, the grains, a movie."""
     from cocd.plots import plot_run
 
     try:
-        path = plot_run(run_file, kind, out)
+        if out is not None:
+            writable_file(out, "--out")
+        path = plot_run(run_file, kind, out, frame=frame)
     except CocdError as exc:
         _fail(exc)
         return
     console.print(f"wrote {path}")
+
+
+@app.command("show")
+def show_command(
+    scene: Annotated[Path, typer.Argument(help="Scene file (TOML, see examples/).")],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="PNG file (default: cocd-runs/<scene name>/scene.png)."),
+    ] = None,
+) -> None:
+    """The scene before any step: one summary line and a snapshot (PNG)."""
+    import numpy as np
+
+    from cocd.config import build_scene, load_config
+    from cocd.contacts import detect_contacts
+
+    try:
+        config = load_config(scene)
+        target = out if out is not None else Path("cocd-runs") / scene.stem / "scene.png"
+        writable_file(target, "--out")
+        built = build_scene(config, str(scene))
+        stepper = config.stepper(built)
+        contacts = detect_contacts(
+            built, stepper.d_max, velocities=built.velocities, dt=config.run.dt, skin=stepper.skin
+        )
+    except CocdError as exc:
+        _fail(exc)
+        return
+    free = ~np.asarray(built.fixed, dtype=bool)
+    lo = (built.positions - built.radii[:, None]).min(axis=0)
+    hi = (built.positions + built.radii[:, None]).max(axis=0)
+    axes = "xyz" if built.dim == 3 else "xy"
+    domain = ", ".join(f"{a} [{lo[k]:.4g}, {hi[k]:.4g}]" for k, a in enumerate(axes))
+    mass_unit = "kg" if built.dim == 3 else "kg per metre of depth"
+    d_mean = 2.0 * float(built.radii[free].mean()) if free.any() else float("nan")
+    nc = int(contacts.i.size)
+    line = (
+        f"{scene.stem}: {built.n_grains} grains, {int(free.sum())} free and "
+        f"{int((~free).sum())} glued; domain {domain} m; total mass of the free grains "
+        f"{float(built.masses[free].sum()):.4g} {mass_unit}; mean diameter "
+        f"{1e3 * d_mean:.4g} mm; {nc} potential contacts "
+        f"({nc / max(int(free.sum()), 1):.2f} per free grain)"
+    )
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cocd.plots import _snapshot_axes, draw_snapshot
+
+    fig, ax = _snapshot_axes(plt, built)
+    draw_snapshot(ax, built, built.velocities)
+    ax.set_title(f"{scene.stem}: {config.builder}, before the first step", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(target, dpi=120)
+    plt.close(fig)
+    console.print(line, highlight=False)
+    console.print(f"wrote {target}", highlight=False)
+
+
+@app.command("builders")
+def builders_command() -> None:
+    """Every scene builder a scene file may name, with its parameters and defaults."""
+    import inspect
+
+    from cocd.config import BUILDERS
+
+    for name, fn in BUILDERS.items():
+        doc = inspect.getdoc(fn) or ""
+        console.print(f"[bold]{name}[/bold]: {doc.splitlines()[0] if doc else ''}")
+        described = _parameter_docs(doc)
+        for p in inspect.signature(fn).parameters.values():
+            if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+                continue
+            default = "required" if p.default is p.empty else f"default {p.default!r}"
+            text = described.get(p.name, "")
+            console.print(
+                f"  {p.name} ({default}){': ' + text if text else ''}",
+                highlight=False,
+                markup=False,
+            )
+
+
+def _parameter_docs(doc: str) -> dict[str, str]:
+    """First sentence of each parameter's description in a numpydoc docstring."""
+    import re
+
+    out: dict[str, str] = {}
+    lines = doc.splitlines()
+    try:
+        start = lines.index("Parameters") + 2
+    except ValueError:
+        return out
+    names: list[str] = []
+    text: list[str] = []
+    for line in lines[start:]:
+        if line and not line.startswith(" "):
+            if re.fullmatch(r"-+", line) or line in ("Returns", "Raises", "Notes"):
+                break
+            for n in names:
+                out[n] = " ".join(text).split(". ")[0].rstrip(".")
+            names = [n.strip() for n in line.split(":")[0].split(",")]
+            text = [line.split(":", 1)[1].strip()] if ":" in line else []
+            text = [f"({text[0]})"] if text else []
+        elif line.strip():
+            text.append(line.strip())
+    for n in names:
+        out[n] = " ".join(text).split(". ")[0].rstrip(".")
+    return out
 
 
 @app.command("sweep")

@@ -7,7 +7,14 @@
 - ``energy``: kinetic and potential energy against time (per frame, from the
   run's statistics);
 - ``stats``: per step, the number of contacts, the backend's iterations and
-  solve time, and the residuals (``ccp`` and ``coulomb``).
+  solve time, and the residuals (``ccp`` and ``coulomb``);
+- ``snapshot``: one frame (the last by default): the grains as discs coloured
+  by speed (glued grains grey), the force chains as lines between the centres
+  of touching grains whose width follows the normal force, the walls, the
+  time. A 3D run is seen from the side (``x`` against ``z``), the grains
+  nearest the viewer (smallest ``y``) drawn last;
+- ``movie``: the snapshots of every frame as a GIF (Pillow) or, for an
+  ``.mp4`` output, an MP4 (ffmpeg, e.g. from the ``imageio-ffmpeg`` wheel).
 """
 
 from __future__ import annotations
@@ -21,33 +28,210 @@ import numpy as np
 from cocd.errors import CocdError
 from cocd.io.runfile import RunFile
 
-__all__ = ["KINDS", "plot_run"]
+__all__ = ["KINDS", "draw_snapshot", "plot_run"]
 
-KINDS = ("profiles", "front", "energy", "stats")
+KINDS = ("profiles", "front", "energy", "stats", "snapshot", "movie")
+#: Figure width (inches) of snapshots and movies; the height follows the scene.
+_SNAPSHOT_WIDTH = 9.0
 _MAX_PROFILES = 8
 
 
 def plot_run(
-    run_path: str | os.PathLike[str], kind: str, out: str | os.PathLike[str] | None = None
+    run_path: str | os.PathLike[str],
+    kind: str,
+    out: str | os.PathLike[str] | None = None,
+    *,
+    frame: int | None = None,
 ) -> Path:
-    """Draw one figure of a run file; returns the PNG's path (default beside the file)."""
+    """Draw one figure of a run file; returns its path (default ``KIND.png`` beside the file).
+
+    ``frame``: the frame of a ``snapshot`` (default the last; negative counts
+    from the end). A ``movie`` is written to ``movie.gif`` by default.
+    """
     if kind not in KINDS:
         raise CocdError(f"unknown plot {kind!r}; one of {', '.join(KINDS)}")
+    if frame is not None and kind != "snapshot":
+        raise CocdError(f"--frame is for a snapshot, not a {kind} plot")
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     run_path = Path(run_path)
-    target = Path(out) if out is not None else run_path.with_name(f"{kind}.png")
+    suffix = ".gif" if kind == "movie" else ".png"
+    target = Path(out) if out is not None else run_path.with_name(f"{kind}{suffix}")
+    if kind == "movie" and target.suffix.lower() not in (".gif", ".mp4"):
+        raise CocdError(f"a movie is written as .gif or .mp4, not {target.name!r}")
     with RunFile(run_path) as rf:
-        fig, _ = _DRAW[kind](rf, plt)
-        fig.suptitle(f"{run_path.name}: {rf.config.get('builder', '')} ({rf.dim}D)")
+        if kind == "movie":
+            target.parent.mkdir(parents=True, exist_ok=True)
+            _movie(rf, plt, target)
+            return target
+        if kind == "snapshot":
+            fig, _ = _snapshot(rf, plt, -1 if frame is None else frame)
+        else:
+            fig, _ = _DRAW[kind](rf, plt)
+            fig.suptitle(_title(rf))
     fig.tight_layout()
     target.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(target, dpi=120)
+    fig.savefig(target, dpi=100 if kind == "snapshot" else 120)
     plt.close(fig)
     return target
+
+
+def _title(rf: RunFile) -> str:
+    """The run's folder, scene and size: what a figure is of."""
+    free = int(_free(rf).sum())
+    glued = rf.n_grains - free
+    params = rf.config.get("params", {})
+    mu = params.get("mu", rf.f["scene"].attrs.get("mu", float("nan")))
+    size = f"N = {free}" + (f" (+{glued} glued)" if glued else "")
+    return f"{rf.path.parent.name}: {rf.config.get('builder', '')}, {rf.dim}D, {size}, mu = {mu:g}"
+
+
+def _snapshot(rf: RunFile, plt: Any, k: int) -> tuple[Any, Any]:
+    n = rf.n_frames
+    if not -n <= k < n:
+        raise CocdError(f"{rf.path} has frames 0 to {n - 1}; there is no frame {k}")
+    fr = rf.frame(k)
+    scene = rf.scene(k)
+    fig, ax = _snapshot_axes(plt, scene)
+    draw_snapshot(ax, scene, fr.velocities, (fr.i, fr.j, fr.impulse[:, 0]), dt=_dt(rf))
+    ax.set_title(f"{_title(rf)}\nt = {fr.time:.4g} s (step {fr.step})", fontsize=9)
+    return fig, ax
+
+
+def _dt(rf: RunFile) -> float:
+    return float(rf.config.get("run", {}).get("dt", float("nan")))
+
+
+def _snapshot_axes(plt: Any, scene: Any) -> tuple[Any, Any]:
+    lo, hi = _extent(scene)
+    aspect = (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-12)
+    height = float(np.clip(_SNAPSHOT_WIDTH * aspect + 1.2, 2.5, 9.0))
+    fig, ax = plt.subplots(figsize=(_SNAPSHOT_WIDTH, height))
+    return fig, ax
+
+
+def _extent(scene: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corners of the grains in the view's plane (x, last coordinate)."""
+    x = scene.positions[:, [0, -1]]
+    r = scene.radii[:, None]
+    lo, hi = (x - r).min(axis=0), (x + r).max(axis=0)
+    pad = 0.03 * float(max(hi - lo)) + float(r.max())
+    return lo - pad, hi + pad
+
+
+def draw_snapshot(
+    ax: Any,
+    scene: Any,
+    velocities: np.ndarray | None = None,
+    chains: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    *,
+    dt: float = float("nan"),
+) -> None:
+    """Draw ``scene`` on ``ax``: discs coloured by speed, force chains, walls.
+
+    ``chains``: ``(i, j, normal impulse)`` of the contacts; lines join the
+    centres of grain pairs (``j >= 0``) whose impulse is positive, with a
+    width that grows with it. ``dt`` turns impulses into forces for the label.
+    """
+    from matplotlib.collections import EllipseCollection, LineCollection
+
+    x = scene.positions
+    r = scene.radii
+    dim = x.shape[1]
+    view = x[:, [0, dim - 1]]
+    order = np.argsort(-x[:, 1]) if dim == 3 else np.arange(len(r))  # far grains first
+    speed = np.zeros(len(r)) if velocities is None else np.linalg.norm(velocities, axis=1)
+    fixed = np.asarray(scene.fixed, dtype=bool)
+    free = order[~fixed[order]]
+    glued = order[fixed[order]]
+    if glued.size:
+        ax.add_collection(EllipseCollection(
+            2 * r[glued], 2 * r[glued], np.zeros(glued.size), units="xy", offsets=view[glued],
+            offset_transform=ax.transData, facecolors="0.6", edgecolors="0.35", linewidths=0.2,
+        ))  # fmt: skip
+    if free.size:
+        discs = EllipseCollection(
+            2 * r[free], 2 * r[free], np.zeros(free.size), units="xy", offsets=view[free],
+            offset_transform=ax.transData, cmap="viridis", edgecolors="k", linewidths=0.1,
+        )  # fmt: skip
+        discs.set_array(speed[free])
+        discs.set_clim(0.0, max(float(speed[free].max()), 1e-12))
+        ax.add_collection(discs)
+        ax.figure.colorbar(discs, ax=ax, label="speed (m/s)", fraction=0.04, pad=0.02)
+    if chains is not None:
+        i, j, pn = (np.asarray(a) for a in chains)
+        pair = (j >= 0) & (pn > 0)
+        if pair.any():
+            force = pn[pair]
+            width = 0.3 + 2.7 * np.sqrt(force / force.max())
+            segments = np.stack([view[i[pair]], view[j[pair]]], axis=1)
+            ax.add_collection(LineCollection(list(segments), linewidths=width, colors="crimson",
+                                             alpha=0.8))  # fmt: skip
+            biggest = float(force.max()) / dt if np.isfinite(dt) and dt > 0 else float("nan")
+            unit = "N/m" if dim == 2 else "N"
+            label = f"force chains (widest {biggest:.3g} {unit})" if np.isfinite(biggest) else (
+                "force chains")  # fmt: skip
+            ax.plot([], [], color="crimson", lw=2, label=label)
+            ax.legend(loc="upper right", fontsize=8)
+    lo, hi = _extent(scene)
+    for wall in scene.walls:
+        n = np.asarray(wall.normal, dtype=float)
+        p = np.asarray(wall.point, dtype=float)
+        nv, pv = n[[0, dim - 1]], p[[0, dim - 1]]
+        if dim == 3 and abs(n[1]) > 0.99:  # a side wall, parallel to the view
+            continue
+        tangent = np.array([-nv[1], nv[0]])
+        span = float(np.linalg.norm(hi - lo)) * 2
+        ends = np.stack([pv - span * tangent, pv + span * tangent])
+        ax.plot(ends[:, 0], ends[:, 1], color="k", lw=1.5)
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)" if dim == 3 else "y (m)")
+
+
+def _movie(rf: RunFile, plt: Any, target: Path) -> None:
+    from matplotlib import animation
+
+    if target.suffix.lower() == ".mp4":
+        try:
+            import imageio_ffmpeg
+
+            plt.rcParams["animation.ffmpeg_path"] = imageio_ffmpeg.get_ffmpeg_exe()
+        except ImportError:
+            pass
+        if not animation.writers.is_available("ffmpeg"):
+            raise CocdError(
+                "an MP4 needs ffmpeg (pip install imageio-ffmpeg); a .gif needs nothing more"
+            )
+        writer: Any = animation.FFMpegWriter(fps=10)
+    else:
+        writer = animation.PillowWriter(fps=10)
+    scenes = [rf.scene(k) for k in range(rf.n_frames)]
+    corners = [_extent(s) for s in scenes]
+    lo = np.min([c[0] for c in corners], axis=0)
+    hi = np.max([c[1] for c in corners], axis=0)
+    fig, ax = _snapshot_axes(plt, scenes[0])
+    top = max(float(np.linalg.norm(s.velocities, axis=1).max(initial=0.0)) for s in scenes)
+    with writer.saving(fig, str(target), dpi=55):
+        for k in range(rf.n_frames):
+            fig.clf()
+            ax = fig.add_subplot(1, 1, 1)
+            fr = rf.frame(k)
+            draw_snapshot(ax, scenes[k], fr.velocities, (fr.i, fr.j, fr.impulse[:, 0]),
+                          dt=_dt(rf))  # fmt: skip
+            for c in ax.collections:
+                if c.get_array() is not None:
+                    c.set_clim(0.0, max(top, 1e-12))
+            ax.set_xlim(lo[0], hi[0])
+            ax.set_ylim(lo[1], hi[1])
+            ax.set_title(f"{_title(rf)}\nt = {fr.time:.4g} s", fontsize=9)
+            writer.grab_frame()
+    plt.close(fig)
 
 
 def _free(rf: RunFile) -> np.ndarray:

@@ -194,3 +194,34 @@ def test_the_readmes_problem_solve_example_is_solved(tmp_path):
     result = runner.invoke(app, [*args, "--save-solution", str(tmp_path / "answer.npz")])
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["status"] == "optimal"
+
+
+def test_snapshot_movie_show_and_builders_from_the_command_line(tmp_path):
+    from pathlib import Path
+
+    from PIL import Image
+
+    out = tmp_path / "run"
+    assert _run("--steps", "4", "--frame-every", "2", "--out", str(out)).exit_code == 0
+    result = runner.invoke(app, ["plot", str(out / "run.h5"), "snapshot", "--frame", "1"])
+    assert result.exit_code == 0, result.output
+    assert Image.open(out / "snapshot.png").size[0] > 800
+    result = runner.invoke(app, ["plot", str(out / "run.h5"), "movie"])
+    assert result.exit_code == 0, result.output
+    movie = Image.open(out / "movie.gif")
+    assert getattr(movie, "n_frames", 1) == 3  # steps 0, 2, 4
+    result = runner.invoke(app, ["plot", str(out / "run.h5"), "snapshot", "--frame", "7"])
+    assert result.exit_code == 2
+    assert "has frames 0 to 2; there is no frame 7" in result.output
+    result = runner.invoke(app, ["plot", str(out / "run.h5"), "movie", "--out", str(tmp_path / "m.avi")])
+    assert result.exit_code == 2 and "a movie is written as .gif or .mp4" in result.output
+    # The scene before any step: the glued bed grains are counted apart.
+    example = Path(__file__).resolve().parents[1] / "examples" / "column_collapse.toml"
+    png = tmp_path / "scene.png"
+    result = runner.invoke(app, ["show", str(example), "--out", str(png)])
+    assert result.exit_code == 0, result.output
+    assert "583 grains, 488 free and 95 glued" in result.output
+    assert "potential contacts" in result.output and png.stat().st_size > 10_000
+    result = runner.invoke(app, ["builders"])
+    assert result.exit_code == 0
+    assert "column_collapse" in result.output and "erodible_thickness (default 0.0)" in result.output
