@@ -58,8 +58,26 @@ def _fail(exc: Exception) -> None:
     raise typer.Exit(code=EXIT_ERROR)
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from cocd.provenance import provenance
+
+        made = provenance()
+        commit = f" (git {made['commit'][:12]}{', modified' if made['dirty'] else ''})"
+        typer.echo(f"cocd {made['cocd']}" + (commit if made["commit"] else ""))
+        raise typer.Exit()
+
+
 @app.callback(invoke_without_command=True)
-def main(ctx: typer.Context) -> None:
+def main(
+    ctx: typer.Context,
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_print_version, is_eager=True, help="Print the version."
+        ),
+    ] = False,
+) -> None:
     """With no command, run the default scene (same as ``cocd run``)."""
     if ctx.invoked_subcommand is None:
         ctx.invoke(run)
@@ -171,11 +189,15 @@ def run(
         )  # fmt: skip
         _interrupted(folder, scene, given, display.reached if display is not None else None)
         raise typer.Exit(code=EXIT_INTERRUPTED) from None
-    from cocd.io.runfile import RunFile
+    from cocd.io.runfile import RunFile, units
 
     with RunFile(summary.path) as rf:
         stats = rf.stats()
-    stats.to_csv(summary.path.with_name("stats.csv"), index=False)
+        unit = units(rf.dim)
+    named = {
+        k: f"{k}_{unit[k].replace(' ', '_').replace('/', '_per_')}" for k in stats if k in unit
+    }
+    stats.rename(columns=named).to_csv(summary.path.with_name("stats.csv"), index=False)
     if summary.resumed_from_step:
         console.print(f"resumed from step {summary.resumed_from_step}", highlight=False)
     if len(stats):
@@ -186,6 +208,13 @@ def run(
             f"{summary.path.with_name('stats.csv')}",
             highlight=False,
         )
+        fell_back = stats[stats.solver != config.run.solver]
+        if len(fell_back):
+            by = ", ".join(f"{n} by {s}" for s, n in fell_back.solver.value_counts().items())
+            console.print(
+                f"{len(fell_back)} of {len(stats)} steps answered by a fallback backend ({by})",
+                highlight=False,
+            )
 
 
 def _interrupted(

@@ -225,3 +225,25 @@ def test_snapshot_movie_show_and_builders_from_the_command_line(tmp_path):
     result = runner.invoke(app, ["builders"])
     assert result.exit_code == 0
     assert "column_collapse" in result.output and "erodible_thickness (default 0.0)" in result.output
+
+
+def test_version_provenance_and_units(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    import cocd
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "cocd", "--version"], capture_output=True, text=True, check=False
+    )
+    assert proc.returncode == 0 and proc.stdout.startswith(f"cocd {cocd.__version__}")
+    out = tmp_path / "run"
+    assert _run("--steps", "2", "--out", str(out)).exit_code == 0
+    with RunFile(out / "run.h5") as rf:
+        attrs = dict(rf.f.attrs)
+    assert attrs["cocd_version"] == cocd.__version__
+    units = json.loads(attrs["units"])
+    assert units["impulse"] == "N s/m" and units["velocities"] == "m/s"  # 2D: per metre
+    header = (out / "stats.csv").read_text().splitlines()[0].split(",")
+    assert {"t_s", "solve_time_s", "kinetic_energy_J_per_m", "ccp_residual"} <= set(header)

@@ -171,6 +171,7 @@ def test_a_run_that_fails_keeps_what_it_wrote(doubles, tmp_path):
     args = ["run", str(scene), "--out", str(out), "--fallback", "clarabel", "--force"]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    assert "8 of 10 steps answered by a fallback backend (8 by clarabel)" in result.output
     with RunFile(out / "run.h5") as rf:
         stats = rf.stats()
     assert list(stats.solver[:2]) == ["raises"] * 2 and set(stats.solver[2:]) == {"clarabel"}

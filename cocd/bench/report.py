@@ -100,7 +100,10 @@ def machine_info() -> dict[str, Any]:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             continue
+    from cocd.provenance import provenance
+
     return {
+        "software": provenance(),
         "cpu": cpu,
         "cores": os.cpu_count(),
         "memory_gib": round(memory, 1),

@@ -3,6 +3,8 @@
 Layout (``format = "cocd-run"``, ``version = 1`` in the root attributes)::
 
     /                     attrs: format, version, dim, n_grains, contact_dim,
+                          cocd_version, git_commit (``+dirty``: modified),
+                          units (JSON: the SI unit of every array and statistic),
                           config (the fully resolved configuration, JSON),
                           scene_file (the scene file's text, if any)
     /scene                radii, density, fixed; attrs gravity, mu, mu_wall,
@@ -48,7 +50,7 @@ from cocd.errors import CocdError
 from cocd.scene import Scene, Wall
 from cocd.stepper import StepRecord
 
-__all__ = ["FORMAT", "VERSION", "Frame", "RunFile", "RunFileError", "RunWriter"]
+__all__ = ["FORMAT", "VERSION", "Frame", "RunFile", "RunFileError", "RunWriter", "units"]
 
 FORMAT = "cocd-run"
 VERSION = 1
@@ -196,9 +198,26 @@ def _append(ds: h5py.Dataset, value: Any) -> None:
     ds[n] = value
 
 
+def units(dim: int) -> dict[str, str]:
+    """SI units of the frames' arrays and of the statistics (2D: per metre of depth)."""
+    depth = "" if dim == 3 else "/m"
+    return {
+        "time": "s", "positions": "m", "velocities": "m/s", "angular_velocities": "rad/s",
+        "gap": "m", "impulse": f"N s{depth}", "radii": "m", "density": "kg/m^3",
+        "t": "s", "detect_time": "s", "setup_time": "s", "solve_time": "s", "redo_time": "s",
+        "kinetic_energy": f"J{depth}", "potential_energy": f"J{depth}",
+    }  # fmt: skip
+
+
 def _layout(f: h5py.File, scene: Scene, config: dict[str, Any], scene_file: str) -> None:
+    from cocd.provenance import provenance
+
     n, d = scene.n_grains, scene.dim
+    made = provenance()
     f.attrs.update(
+        cocd_version=made["cocd"],
+        git_commit=(made["commit"] or "") + ("+dirty" if made["dirty"] else ""),
+        units=json.dumps(units(d)),
         format=FORMAT,
         version=VERSION,
         dim=d,

@@ -1,0 +1,40 @@
+"""Which cocd made a file: its version and, from a git checkout, the commit."""
+
+from __future__ import annotations
+
+import functools
+import subprocess
+from pathlib import Path
+from typing import Any
+
+__all__ = ["provenance"]
+
+
+@functools.cache
+def provenance() -> dict[str, Any]:
+    """``{"cocd": version, "commit": sha or None, "dirty": bool or None}``.
+
+    ``commit`` is the checkout's ``HEAD`` when cocd runs from a git work tree
+    (an editable install), with ``dirty`` true when it has uncommitted changes;
+    both are None otherwise (an installed wheel, or no git).
+    """
+    from cocd import __version__
+
+    root = Path(__file__).resolve().parents[1]
+    commit: str | None = None
+    dirty: bool | None = None
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True, text=True, timeout=5, check=False,
+        )  # fmt: skip
+        if head.returncode == 0 and (root / "cocd").is_dir():
+            commit = head.stdout.strip() or None
+            status = subprocess.run(
+                ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                capture_output=True, text=True, timeout=5, check=False,
+            )  # fmt: skip
+            dirty = bool(status.stdout.strip()) if status.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {"cocd": __version__, "commit": commit, "dirty": dirty}
