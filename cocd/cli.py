@@ -25,6 +25,7 @@ from cocd.bench.validate_cli import validate_app
 from cocd.errors import CocdError
 
 app = typer.Typer(
+    rich_markup_mode=None,
     add_completion=False,
     no_args_is_help=False,
     help="Granular media with hard Coulomb contact, one convex conic problem per step.",
@@ -32,13 +33,17 @@ app = typer.Typer(
 app.add_typer(bench_app, name="bench")
 app.add_typer(validate_app, name="validate")
 problem_app = typer.Typer(
+    rich_markup_mode=None,
     add_completion=False,
     no_args_is_help=True,
     help="Single-step problems from other tools: FCLib HDF5 and Siconos text files.",
 )
 app.add_typer(problem_app, name="problem")
 export_app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help="Export a run file for other tools."
+    rich_markup_mode=None,
+    add_completion=False,
+    no_args_is_help=True,
+    help="Export a run file for other tools.",
 )
 app.add_typer(export_app, name="export")
 console = Console(soft_wrap=True)
@@ -83,7 +88,25 @@ def main(
         ctx.invoke(run)
 
 
-@app.command()
+def _run_keys() -> str:
+    """The ``[run]`` keys of a scene file, for ``cocd run --help``."""
+    from cocd.config import RunSection
+
+    lines = []
+    for name, field in RunSection.model_fields.items():
+        default = (
+            "none" if field.default is None else repr(field.get_default(call_default_factory=True))
+        )
+        lines.append(f"{name} ({default}): {field.description or ''}")
+    return "\n\n".join(lines)
+
+
+@app.command(
+    help="Run a scene file and write OUT/run.h5 (frames, contacts, statistics) and "
+    "OUT/stats.csv.\n\nOptions given here override the scene file's [run] table. Without "
+    "a scene file: the collapse of a 2D column of 300 discs for 0.1 s.\n\nThe [run] keys "
+    "of a scene file:\n\n" + _run_keys()
+)
 def run(
     scene: Annotated[
         Path | None,

@@ -104,15 +104,21 @@ class RunSection(BaseModel):
     dt: float = Field(1e-3, gt=0.0, description="time step (s)")
     until: float | None = Field(None, gt=0.0, description="simulated time at the end (s)")
     steps: int | None = Field(None, ge=0, description="number of steps (instead of until)")
-    solver: str = "clarabel"
-    tol: float = Field(1e-8, gt=0.0)
+    solver: str = Field("clarabel", description="backend (see `cocd solvers`)")
+    tol: float = Field(1e-8, gt=0.0, description="tolerance: optimal means ccp_residual <= tol")
     frame_every: int = Field(10, ge=1, description="steps between saved frames")
-    warm_start: bool = True
-    max_iter: int | None = Field(None, ge=1)
-    solver_options: dict[str, Any] = Field(default_factory=dict)
+    warm_start: bool = Field(True, description="start each step from the last impulses")
+    max_iter: int | None = Field(None, ge=1, description="backend iteration cap")
+    solver_options: dict[str, Any] = Field(
+        default_factory=dict, description="options passed to the backend"
+    )
     fallback: list[str] = Field(default_factory=list, description="backends tried on failure")
-    residual_factor: float | None = Field(1e3, ge=1.0)
-    energy_factor: float | None = Field(100.0, ge=1.0)
+    residual_factor: float | None = Field(
+        1e3, ge=1.0, description="a step fails above residual_factor x tol"
+    )
+    energy_factor: float | None = Field(
+        100.0, ge=1.0, description="a step fails above this times the kinetic energy before it"
+    )
     d_max: float | None = Field(
         None, ge=0.0, description="floor of the detection threshold (m); default r_mean / 2"
     )
@@ -122,7 +128,9 @@ class RunSection(BaseModel):
     penetration_tol: float = Field(
         DEFAULT_PENETRATION_TOL, ge=0.0, description="end-of-step overlap allowed (radii)"
     )
-    on_penetration: Literal["redo", "raise", "warn", "record"] = "redo"
+    on_penetration: Literal["redo", "raise", "warn", "record"] = Field(
+        "redo", description="what an overlap above penetration_tol does"
+    )
 
     @field_validator("dt", "until", "tol", "d_max", "skin", "penetration_tol")
     @classmethod

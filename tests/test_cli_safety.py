@@ -247,3 +247,11 @@ def test_version_provenance_and_units(tmp_path):
     assert units["impulse"] == "N s/m" and units["velocities"] == "m/s"  # 2D: per metre
     header = (out / "stats.csv").read_text().splitlines()[0].split(",")
     assert {"t_s", "solve_time_s", "kinetic_energy_J_per_m", "ccp_residual"} <= set(header)
+
+
+def test_run_help_lists_the_run_keys_with_brackets_intact():
+    result = runner.invoke(app, ["run", "--help"])
+    assert result.exit_code == 0
+    assert "override the scene file's [run] table" in result.output
+    for key in ("dt (0.001)", "frame_every (10)", "d_max (none)", "on_penetration ('redo')"):
+        assert key in result.output

@@ -16,6 +16,7 @@ import typer
 from cocd.errors import CocdError
 
 bench_app = typer.Typer(
+    rich_markup_mode=None,
     add_completion=False,
     no_args_is_help=True,
     help="Compare backends: Table 1, stability, precision, hard cases, external problems.",

@@ -18,6 +18,7 @@ from cocd.bench.cli import _fail, _floats
 from cocd.errors import CocdError
 
 validate_app = typer.Typer(
+    rich_markup_mode=None,
     add_completion=False,
     no_args_is_help=True,
     help="Reproduce the seeds' physics: time step, NSCD, erodible beds, stability, "
