@@ -553,7 +553,8 @@ def sweep_command(
         ),
     ] = None,
     out: Annotated[
-        Path | None, typer.Option("--out", help="Output folder (default results/sweeps/<name>).")
+        Path | None,
+        typer.Option("--out", help="Output folder (default cocd-results/sweeps/<name>)."),
     ] = None,
 ) -> None:
     """Run a grid of short runs on Dask; one Parquet file per cell; finished cells are skipped."""
@@ -565,7 +566,7 @@ def sweep_command(
         if workers is not None and workers < 1:
             raise CocdError(f"--workers must be >= 1, got {workers}")
         spec = load_sweep(sweep_file)
-        folder = out if out is not None else Path("results") / "sweeps" / spec.name
+        folder = out if out is not None else Path("cocd-results") / "sweeps" / spec.name
         display = _SweepDisplay()
         summary = run_sweep(
             spec, folder, workers=workers, scheduler=scheduler, progress=display.update

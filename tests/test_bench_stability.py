@@ -221,11 +221,15 @@ def test_child_failure_and_hang_are_rows(tmp_path):
     assert row["note"].startswith("killed") and not row["at_rest"]
 
 
-def test_cli_end_to_end(tmp_path):
+def test_cli_end_to_end(tmp_path, monkeypatch):
+    # Without --out the results go to cocd-results/, never into a committed results/.
+    monkeypatch.chdir(tmp_path)
     args = ["bench", "stability", "--n", "30", "--dim", "2", "--solvers", "clarabel"]
-    args += ["--eps-list", "1e-8", "--t-end", "0.5", "--run-budget", "600", "--out", str(tmp_path)]
+    args += ["--eps-list", "1e-8", "--t-end", "0.5", "--run-budget", "600"]
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 0, res.output
+    assert not (tmp_path / "results").exists()
+    tmp_path = tmp_path / "cocd-results"
     table = pd.read_csv(tmp_path / "stability_summary.csv")
     assert len(table) == 1 and bool(table["at_rest"].iloc[0])
     assert table["steps_done"].iloc[0] == table["steps_asked"].iloc[0] >= 1

@@ -26,7 +26,11 @@ Solvers = Annotated[
     str | None,
     typer.Option("--solvers", help="Comma-separated backends (default: the harness's set)."),
 ]
-Out = Annotated[Path, typer.Option("--out", help="Output directory.")]
+Out = Annotated[
+    Path, typer.Option("--out", help="Output directory (the committed tables: --out results).")
+]
+#: Where results go unless --out says otherwise: not the committed results/.
+DEFAULT_OUT = Path("cocd-results")
 TimeLimit = Annotated[
     float, typer.Option("--time-limit", help="Seconds per solve before a backend is stopped.")
 ]
@@ -104,7 +108,7 @@ def table1(
             "clarabel-dual in 3D).",
         ),
     ] = None,
-    out: Out = Path("results"),
+    out: Out = DEFAULT_OUT,
 ) -> None:
     """The seed's Table 1: iterations and time per step against N, dt and eps."""
     from cocd.bench import table1 as mod
@@ -149,7 +153,7 @@ def stability(
             help="Wall seconds per (solver, eps) run; a run that spends them stops, not at rest.",
         ),
     ] = None,
-    out: Out = Path("results"),
+    out: Out = DEFAULT_OUT,
 ) -> None:
     """The seed's Fig. 3: does a box at rest stay at rest, for each solver and eps?"""
     from cocd.bench import stability as mod
@@ -181,7 +185,7 @@ def precision(
     n3d: Annotated[int, typer.Option("--n3d", help="Spheres in the 3D box.")] = 1000,
     time_limit: TimeLimit = 300.0,
     memory_gb: MemoryGb = None,
-    out: Out = Path("results"),
+    out: Out = DEFAULT_OUT,
 ) -> None:
     """Speed against error: work-precision plots, performance profiles, geometric means."""
     from cocd.bench import precision as mod
@@ -210,7 +214,7 @@ def hard(
     tol: Annotated[float, typer.Option("--tol", help="Tolerance asked of every solver.")] = 1e-6,
     time_limit: TimeLimit = 120.0,
     memory_gb: MemoryGb = None,
-    out: Out = Path("results"),
+    out: Out = DEFAULT_OUT,
 ) -> None:
     """Every solver on every hard case: status, iterations, time, residuals, energy drift."""
     from cocd.bench import hard as mod
@@ -242,7 +246,7 @@ def external(
     ] = 1e-6,
     time_limit: TimeLimit = 60.0,
     memory_gb: MemoryGb = None,
-    out: Out = Path("results"),
+    out: Out = DEFAULT_OUT,
 ) -> None:
     """Every backend on every problem file of FOLDER: table and performance profiles."""
     from cocd.bench import external as mod
@@ -302,7 +306,7 @@ def scaling(
     ] = None,
     time_limit: TimeLimit = 900.0,
     memory_gb: MemoryGb = None,
-    out: Out = Path("results"),
+    out: Out = DEFAULT_OUT,
 ) -> None:
     """Time per step against N per backend (2D column; 3D column, box, lattice), with fits."""
     from cocd.bench import scaling as mod
@@ -326,6 +330,6 @@ def scaling(
 
 
 @bench_app.command()
-def readme(out: Out = Path("results")) -> None:
+def readme(out: Out = DEFAULT_OUT) -> None:
     """Rebuild OUT/README.md from the result files' records."""
     _finish(out)

@@ -4,7 +4,7 @@ Each case runs a few column collapses (or a static box) with
 :func:`cocd.runs.run`, one run file per simulation under
 ``<out>/runs/<case>/<label>/run.h5``, then measures the saved frames and
 writes a table, figures and ``<case>.meta.json`` under ``<out>``
-(default ``results/validation``), whose ``README.md`` is rebuilt from them.
+(default ``cocd-results/validation``), whose ``README.md`` is rebuilt from them.
 
 - ``timestep`` (the seed's Fig. 2): a 2D collapse on a rough horizontal bed
   with several time steps; mass profiles at a few times and their relative

@@ -3,7 +3,8 @@
 
 Each command runs its simulations (resumable run files under
 ``OUT/runs/<case>/``), writes its table and figures under ``--out`` (default
-``results/validation``) and rebuilds ``OUT/README.md``.
+``cocd-results/validation``; the committed figures: ``--out results/validation``)
+and rebuilds ``OUT/README.md``.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ Fresh = Annotated[
     bool, typer.Option("--fresh", help="Start the runs over instead of resuming them.")
 ]
 Mu = Annotated[float, typer.Option("--mu", help="Friction coefficient (grains and walls).")]
-DEFAULT_OUT = Path("results/validation")
+DEFAULT_OUT = Path("cocd-results/validation")
 
 
 def _names(text: str) -> list[str]:
