@@ -312,7 +312,7 @@ def _energy(rf: RunFile, plt: Any) -> tuple[Any, Any]:
     unit = "J/m" if rf.dim == 2 else "J"
     ax.set_xlabel("t (s)")
     ax.set_ylabel(f"energy ({unit}; potential from its final value)")
-    ax.grid(True, alpha=0.3)
+    _tidy([ax], len(stats))
     ax.legend()
     return fig, ax
 
@@ -335,9 +335,28 @@ def _stats(rf: RunFile, plt: Any) -> tuple[Any, Any]:
     axes[1, 1].legend()
     for ax in axes[1]:
         ax.set_xlabel("t (s)")
-    for ax in axes.flat:
-        ax.grid(True, alpha=0.3)
+    _tidy(axes.flat, len(stats))
     return fig, axes
+
+
+def _tidy(axes: Any, points: int) -> None:
+    """Readable on short runs too: markers on few points, no crowded minor log labels."""
+    from matplotlib.ticker import MaxNLocator, NullFormatter
+
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=6))
+        if ax.get_yscale() == "log":
+            low, high = ax.get_ylim()
+            if high < 10.0 * low:  # less than a decade: a linear axis reads better
+                ax.set_yscale("linear")
+                ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 3))
+            else:
+                ax.yaxis.set_minor_formatter(NullFormatter())
+        if points <= 30:
+            for line in ax.get_lines():
+                line.set_marker("o")
+                line.set_markersize(3)
 
 
 _DRAW = {"profiles": _profiles, "front": _front, "energy": _energy, "stats": _stats}

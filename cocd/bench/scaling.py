@@ -355,7 +355,8 @@ def _write(table: pd.DataFrame, out: Path, steps: int, time_limit: float) -> Non
                 (fitted.dim == dim) & (fitted.packing == packing) & (fitted.solver == solver)
             ]["exponent"]
             name = f"{solver}, {packing}" if dim == 3 else str(solver)
-            label = f"{name} (k = {float(k.iloc[0]):.2f})" if len(k) else name
+            fitted_k = float(k.iloc[0]) if len(k) else float("nan")
+            label = f"{name} (k = {fitted_k:.2f})" if math.isfinite(fitted_k) else name
             ax.loglog(group["N"], group["time_per_step_s"], marks.get(packing, "o-"), label=label)
         ax.set_title(f"{dim}D")
         ax.set_xlabel("N (grains)")
