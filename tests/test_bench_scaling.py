@@ -184,3 +184,14 @@ def test_scaling_cli_rejects_an_unknown_packing_in_one_line(tmp_path):
     assert result.exit_code != 0
     assert "unknown 3D packing 'rain'; choose from column, box, jammed_box" in result.output
     assert "Traceback" not in result.output
+
+
+def test_scaling_resume_keeps_the_rows_it_has(tmp_path):
+    kw = dict(solvers="apgd", n2d=[], steps=1, time_limit=60.0, memory_gb=None, out=tmp_path,
+              progress=lambda line: None, packings=["jammed_box"])  # fmt: skip
+    first = scaling.run(n3d=[8], **kw)
+    again = scaling.run(n3d=[8, 27], resume=True, **kw)
+    assert list(again.N) == [8, 27] and (again.steps_ok == "1/1").all()
+    kept = again[again.N == 8].iloc[0]
+    assert kept.time_per_step_s == first.time_per_step_s.iloc[0]
+    assert len(pd.read_csv(tmp_path / "scaling.csv")) == 2

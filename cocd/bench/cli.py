@@ -296,6 +296,9 @@ def scaling(
         str | None,
         typer.Option("--n3d-box", help="Sizes of the box packing, if not those of --n3d."),
     ] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Keep OUT/scaling.csv's 3D rows; run the others.")
+    ] = False,
     steps: Annotated[int, typer.Option("--steps", help="Problems timed per size.")] = 3,
     trajectory: Annotated[
         str, typer.Option("--trajectory", help="Backend that steps the 2D columns.")
@@ -324,6 +327,7 @@ def scaling(
             table1=table1,
             packings=[p.strip() for p in packings.split(",") if p.strip()],
             n3d_box=None if n3d_box is None else _ints(n3d_box, "--n3d-box"),
+            resume=resume,
         ),
         out,
     )

@@ -145,6 +145,7 @@ def run(
     table1: Path | None = None,
     packings: list[str] | None = None,
     n3d_box: list[int] | None = None,
+    resume: bool = False,
 ) -> pd.DataFrame:
     """Time every backend at every size; write ``scaling.{csv,md,png}`` and the fits.
 
@@ -152,7 +153,10 @@ def run(
     machine's, the same column-collapse steps) join the table instead of
     being solved again. ``packings``: the 3D packings (default all of
     :data:`PACKINGS_3D`). ``n3d_box``: the box's sizes, when they are not
-    ``n3d`` (its rain deposition costs hours at 10^5 spheres).
+    ``n3d`` (its rain deposition costs hours at 10^5 spheres). ``resume``: keep
+    the 3D rows of ``out/scaling.csv`` (same packing, N, backend and eps) and
+    solve only the others; the table is rewritten after every row, so an
+    interrupted run goes on where it stopped.
     """
     packings = list(PACKINGS_3D) if packings is None else list(packings)
     unknown = sorted(set(packings) - set(PACKINGS_3D))
@@ -169,6 +173,8 @@ def run(
         raise CocdError(f"sizes must be positive integers, got 2D {n2d} and 3D {n3d}")
     memory = default_memory_gb() if memory_gb is None else float(memory_gb)
     rows: list[dict[str, Any]] = _table1_rows(table1, solvers) if table1 is not None else []
+    done = _previous_rows(out / "scaling.csv") if resume else {}
+    rows += [r for r in done.values() if r["dim"] == 3]
     cases = [(2, "column", n) for n in sorted(n2d)]
     box_sizes = n3d if n3d_box is None else n3d_box
     cases += [
@@ -182,6 +188,9 @@ def run(
     with Worker(memory_gb=memory) as worker:
         for dim, packing, n in cases:
             eps = EPS_2D if dim == 2 else EPS_3D
+            todo = [name for name in names[dim] if dim == 2 or (packing, n, name, eps) not in done]
+            if not todo:
+                continue
             if dim == 2:
                 problems, warms, n_free, detect = _problems_2d(n, steps, trajectory, progress)
             else:
@@ -193,7 +202,7 @@ def run(
                 "detect_assemble_s": detect,
             }  # fmt: skip
             warm = warmup_problem(dim)
-            for name in names[dim]:
+            for name in todo:
                 start = "yes" if warms[0] is not None and solvers_warm(name) else "no"
                 key = (dim, packing, name)
                 if key in given_up:
@@ -233,6 +242,24 @@ def run(
     table = pd.DataFrame(rows, columns=COLUMNS)
     _write(table, out, steps, time_limit)
     return table
+
+
+def _previous_rows(path: Path) -> dict[tuple[str, int, str, float], dict[str, Any]]:
+    """The 3D rows of an earlier ``scaling.csv``, keyed by (packing, N, solver, eps)."""
+    if not path.is_file():
+        return {}
+    try:
+        old = pd.read_csv(path, keep_default_na=False, na_values=[""])
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise CocdError(f"cannot resume from {path}: {exc}") from None
+    missing = set(COLUMNS) - set(old.columns)
+    if missing:
+        raise CocdError(f"cannot resume from {path}: columns {sorted(missing)} are missing")
+    rows = {}
+    for rec in old[old["dim"] == 3][COLUMNS].to_dict("records"):
+        rec["note"] = "" if pd.isna(rec["note"]) else str(rec["note"])
+        rows[(str(rec["packing"]), int(rec["N"]), str(rec["solver"]), float(rec["eps"]))] = rec
+    return rows
 
 
 def solvers_warm(name: str) -> bool:
