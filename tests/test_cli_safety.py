@@ -148,6 +148,7 @@ def test_time_left_leaves_out_the_first_step_and_fits_80_columns():
 
 def test_ctrl_c_in_a_terminal_says_where_and_how_to_resume(tmp_path):
     import re
+    import signal
     import sys
 
     import pexpect
@@ -155,13 +156,21 @@ def test_ctrl_c_in_a_terminal_says_where_and_how_to_resume(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "cocd", "run", "--steps", "5000", "--frame-every", "2"]
     cmd += ["--out", str(out)]
-    child = pexpect.spawn(cmd[0], cmd[1:], encoding="utf-8", timeout=120, dimensions=(24, 80))
+    # A shell that runs the tests in the background may ignore SIGINT, and children
+    # inherit that: the command gets the default handling a terminal user has.
+    child = pexpect.spawn(
+        cmd[0], cmd[1:], encoding="utf-8", timeout=120, dimensions=(24, 80),
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
     while True:  # a few steps in, a few frames written
         child.expect(r"(\d+)/5000")
         if int(child.match.group(1)) >= 6:
             break
-    child.sendintr()
-    child.expect(r"interrupted at step (\d+) \(t = [0-9.e-]+ s\); (\S+) keeps frames up to step (\d+)")
+    child.sendintr()  # Ctrl-C on the terminal
+    if child.expect([r"interrupted at", pexpect.TIMEOUT], timeout=20) == 1:
+        child.kill(signal.SIGINT)  # a wrapper (e.g. timeout(1)) kept the terminal's ^C away
+        child.expect(r"interrupted at")
+    child.expect(r" step (\d+) \(t = [0-9.e-]+ s\); (\S+) keeps frames up to step (\d+)")
     reached, kept = int(child.match.group(1)), int(child.match.group(3))
     assert child.match.group(2) == str(out / "run.h5") and 0 < kept <= reached
     child.expect(r"continue with: (.*) --resume")
@@ -213,7 +222,9 @@ def test_snapshot_movie_show_and_builders_from_the_command_line(tmp_path):
     result = runner.invoke(app, ["plot", str(out / "run.h5"), "snapshot", "--frame", "7"])
     assert result.exit_code == 2
     assert "has frames 0 to 2; there is no frame 7" in result.output
-    result = runner.invoke(app, ["plot", str(out / "run.h5"), "movie", "--out", str(tmp_path / "m.avi")])
+    result = runner.invoke(
+        app, ["plot", str(out / "run.h5"), "movie", "--out", str(tmp_path / "m.avi")]
+    )
     assert result.exit_code == 2 and "a movie is written as .gif or .mp4" in result.output
     # The scene before any step: the glued bed grains are counted apart.
     example = Path(__file__).resolve().parents[1] / "examples" / "column_collapse.toml"
@@ -224,7 +235,9 @@ def test_snapshot_movie_show_and_builders_from_the_command_line(tmp_path):
     assert "potential contacts" in result.output and png.stat().st_size > 10_000
     result = runner.invoke(app, ["builders"])
     assert result.exit_code == 0
-    assert "column_collapse" in result.output and "erodible_thickness (default 0.0)" in result.output
+    assert (
+        "column_collapse" in result.output and "erodible_thickness (default 0.0)" in result.output
+    )
 
 
 def test_version_provenance_and_units(tmp_path):
