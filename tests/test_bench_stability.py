@@ -207,7 +207,10 @@ def test_child_failure_and_hang_are_rows(tmp_path):
     )
     row = _row(table, "clarabel", 1e-8)
     assert row["steps_done"] == 0 and not row["at_rest"]
-    assert "SolverError" in row["note"] and "time_limit" in row["note"]
+    # Clarabel stops at its first check of the clock; what it reports then varies with
+    # the machine's load (time_limit, or inaccurate with a residual far above tol).
+    assert "SolverError" in row["note"]
+    assert "time_limit" in row["note"] or "status inaccurate" in row["note"]
     # No grace: the child cannot even start within 1.5 ms, so it is killed as hung.
     table = stability.run(
         solvers="clarabel",

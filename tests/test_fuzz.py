@@ -214,7 +214,9 @@ def _mutate(path: Path, pick: int, mutation: str, value: object, cut: float) -> 
     with h5py.File(path, "a") as f:
         if mutation == "attr":
             f[name].attrs["junk"] = 1
-            f.attrs[("version", "config", "dim", "format")[pick % 4]] = str(value)[:10]
+            # (HDF5 strings cannot hold a NUL.)
+            text = str(value)[:10].replace("\x00", "?")
+            f.attrs[("version", "config", "dim", "format")[pick % 4]] = text
             return
         del f[name]
         if mutation == "replace" and not isinstance(value, list):
