@@ -23,6 +23,7 @@ import solvers
 from cocd.bench.cli import bench_app
 from cocd.bench.validate_cli import validate_app
 from cocd.errors import CocdError
+from cocd.exits import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_NOT_SOLVED, fail
 
 app = typer.Typer(
     rich_markup_mode=None,
@@ -47,20 +48,6 @@ export_app = typer.Typer(
 )
 app.add_typer(export_app, name="export")
 console = Console(soft_wrap=True)
-
-
-#: Exit status of a command whose input was wrong or whose work failed.
-EXIT_ERROR = 2
-#: Exit status after Ctrl-C (128 + SIGINT, as shells report it).
-EXIT_INTERRUPTED = 130
-#: Exit status of ``cocd problem solve`` when the backend answered but not to the
-#: tolerance (status ``max_iter``, ``inaccurate`` or ``time_limit``).
-EXIT_NOT_SOLVED = 3
-
-
-def _fail(exc: Exception) -> None:
-    typer.echo(f"error: {exc}", err=True)
-    raise typer.Exit(code=EXIT_ERROR)
 
 
 def _print_version(value: bool) -> None:
@@ -203,7 +190,7 @@ def run(
                 source=source, scene=built, force=force,
             )  # fmt: skip
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
         return
     except KeyboardInterrupt:
         given = dict(
@@ -397,7 +384,7 @@ def export_vtu_command(
     try:
         paths = export_vtu(run_file, folder, every=every)
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
         return
     console.print(f"wrote {', '.join(str(p) for p in paths)} (open them in ParaView)")
 
@@ -425,7 +412,7 @@ def plot_command(
             writable_file(out, "--out")
         path = plot_run(run_file, kind, out, frame=frame)
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
         return
     console.print(f"wrote {path}")
 
@@ -454,7 +441,7 @@ def show_command(
             built, stepper.d_max, velocities=built.velocities, dt=config.run.dt, skin=stepper.skin
         )
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
         return
     free = ~np.asarray(built.fixed, dtype=bool)
     lo = (built.positions - built.radii[:, None]).min(axis=0)
@@ -471,19 +458,9 @@ def show_command(
         f"{1e3 * d_mean:.4g} mm; {nc} potential contacts "
         f"({nc / max(int(free.sum()), 1):.2f} per free grain)"
     )
-    import matplotlib
+    from cocd.plots import plot_scene
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from cocd.plots import _snapshot_axes, draw_snapshot
-
-    fig, ax = _snapshot_axes(plt, built)
-    draw_snapshot(ax, built, built.velocities)
-    ax.set_title(f"{scene.stem}: {config.builder}, before the first step", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(target, dpi=120)
-    plt.close(fig)
+    plot_scene(built, target, title=f"{scene.stem}: {config.builder}, before the first step")
     console.print(line, highlight=False)
     console.print(f"wrote {target}", highlight=False)
 
@@ -572,7 +549,7 @@ def sweep_command(
             spec, folder, workers=workers, scheduler=scheduler, progress=display.update
         )
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
         return
     if summary.ran == 0:
         console.print(f"{summary.cells} cells, all finished before: nothing to do")
@@ -644,7 +621,7 @@ def problem_info(
     try:
         info = describe(read_problem(file))
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
         return
     if as_json:
         typer.echo(json.dumps(_jsonable(info)))
@@ -689,11 +666,11 @@ def problem_solve(
         problem = read_problem(file)
         record, answer = solve_external(problem, solver, tol, time_limit=time_limit)
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
         return
     if save_solution is not None:
         if answer is None:
-            _fail(CocdError(f"solver {solver!r} returned no usable impulses: nothing to save"))
+            fail(CocdError(f"solver {solver!r} returned no usable impulses: nothing to save"))
         else:
             import numpy as np
 

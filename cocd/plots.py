@@ -28,7 +28,7 @@ import numpy as np
 from cocd.errors import CocdError
 from cocd.io.runfile import RunFile
 
-__all__ = ["KINDS", "draw_snapshot", "plot_run"]
+__all__ = ["KINDS", "draw_snapshot", "plot_run", "plot_scene"]
 
 KINDS = ("profiles", "front", "energy", "stats", "snapshot", "movie")
 #: Figure width (inches) of snapshots and movies; the height follows the scene.
@@ -99,6 +99,24 @@ def _snapshot(rf: RunFile, plt: Any, k: int) -> tuple[Any, Any]:
     draw_snapshot(ax, scene, fr.velocities, (fr.i, fr.j, fr.impulse[:, 0]), dt=_dt(rf))
     ax.set_title(f"{_title(rf)}\nt = {fr.time:.4g} s (step {fr.step})", fontsize=9)
     return fig, ax
+
+
+def plot_scene(scene: Any, path: Path | str, *, title: str = "") -> Path:
+    """Save a snapshot of ``scene`` as it is (grains coloured by their speed, walls,
+    glued grains) to ``path``; return the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = _snapshot_axes(plt, scene)
+    draw_snapshot(ax, scene, scene.velocities)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path)
 
 
 def _dt(rf: RunFile) -> float:

@@ -60,7 +60,8 @@ def test_files_and_columns(result):
     assert set(STATED) <= set(csv.columns)
     assert len(csv) == len(table) == len(CASES) * 2
     assert list(dict.fromkeys(csv["case"])) == CASES
-    assert len(lines) == len(table)
+    assert lines[0].startswith(f"hard: {len(table)} solves")  # the estimate comes first
+    assert len(lines) == len(table) + 1
     meta = json.loads((out / "hard.meta.json").read_text())
     assert meta["name"] == "hard"
     assert "| case | clarabel | pgs |" in meta["summary"]
@@ -173,6 +174,13 @@ def test_cli(tmp_path):
     assert list(table["status"]) == ["ok"] and table["steps_done"].iloc[0] == 1
     assert (tmp_path / "README.md").is_file()
     assert "| wedged_grain | ok " in (tmp_path / "README.md").read_text()
+    # The time is announced before the solves and recorded; the next run scales from it.
+    assert "hard: 1 solve, the largest of" in result.output
+    meta = json.loads((tmp_path / "hard.meta.json").read_text())
+    assert meta["elapsed_s"] > 0 and meta["work_units"] > 0
+    again = CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+    assert again.exit_code == 0, again.output
+    assert f"scaled from the run recorded in {tmp_path / 'hard.meta.json'}" in again.output
     bad = CliRunner().invoke(app, ["bench", "hard", "--cases", "nope", "--out", str(tmp_path)])
     assert bad.exit_code == 2
     assert "unknown hard case" in bad.output

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cocd.bench import estimate
 from cocd.bench import validate as base
 from cocd.errors import CocdError, SolverError
 
@@ -108,6 +109,15 @@ def avalanche(
     cells.mkdir(parents=True, exist_ok=True)
     hold_steps = max(1, round(hold / dt))
     threshold = v_flow * math.sqrt(G * diameter)
+    # A guide: up to the angle of repose near atan(mu) + 10 deg, then back down.
+    holds = [
+        2 * (math.degrees(math.atan(mu)) + 10.0 - start_deg) / step_deg
+        for mu in mus
+        if fresh or not (cells / f"n{n}_mu{mu:g}.csv").exists()
+    ]
+    estimate.announce(
+        "avalanche", [(n, max(h, 2.0) * hold_steps) for h in holds], out=out, progress=progress
+    )
     rows, traces = [], []
     for mu in mus:
         cell = cells / f"n{n}_mu{mu:g}.csv"

@@ -14,6 +14,7 @@ from typing import Annotated
 import typer
 
 from cocd.errors import CocdError
+from cocd.exits import fail
 
 bench_app = typer.Typer(
     rich_markup_mode=None,
@@ -55,7 +56,7 @@ def _run(job: Callable[[], object], out: Path) -> None:
     try:
         job()
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
     _finish(out)
 
 
@@ -65,12 +66,7 @@ def _finish(out: Path) -> None:
     try:
         typer.echo(f"wrote {write_readme(out)}")
     except CocdError as exc:
-        _fail(exc)
-
-
-def _fail(exc: Exception) -> None:
-    typer.echo(f"error: {exc}", err=True)
-    raise typer.Exit(code=2)
+        fail(exc)
 
 
 @bench_app.command()

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cocd.bench import DEFAULT_SOLVERS, select_solvers
+from cocd.bench import DEFAULT_SOLVERS, estimate, select_solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.errors import CocdError, ProblemError
@@ -101,17 +101,33 @@ def run(
     files = _files(Path(folder))
     names = solvers if solvers is not None else [n for n in EXTERNAL_SOLVERS if _usable(n)]
     memory = default_memory_gb() if memory_gb is None else float(memory_gb)
+    problems: dict[Path, Any] = {}
+    for path in files:
+        try:
+            problems[path] = read_problem(path)
+        except CocdError as exc:
+            problems[path] = exc
+    estimate.announce(
+        "external",
+        # Size in grains: about two contacts per grain in these files.
+        [
+            (p.nc / 2, len(select_solvers(names, p.dim)))
+            for p in problems.values()
+            if not isinstance(p, CocdError)
+        ],
+        out=Path(out),
+        progress=progress,
+    )
     rows: list[dict[str, Any]] = []
     warmed: set[tuple[str, int]] = set()
     with Worker(memory_gb=memory) as worker:
         for path in files:
             base: dict[str, Any] = {c: np.nan for c in COLUMNS}
             base.update(problem=path.name, note="")
-            try:
-                problem = read_problem(path)
-            except CocdError as exc:
-                rows.append({**base, "status": "unreadable", "note": str(exc)})
-                progress(f"{path.name}: unreadable: {exc}")
+            problem = problems[path]
+            if isinstance(problem, CocdError):
+                rows.append({**base, "status": "unreadable", "note": str(problem)})
+                progress(f"{path.name}: unreadable: {problem}")
                 continue
             base.update(kind=problem.kind, dim=problem.dim, nc=problem.nc, ndof=problem.ndof)
             chosen = select_solvers(names, problem.dim)

@@ -62,7 +62,7 @@ import numpy as np
 import pandas as pd
 
 import solvers
-from cocd.bench import select_solvers
+from cocd.bench import estimate, select_solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import default_memory_gb
 from cocd.builders import HARD_CASES
@@ -529,13 +529,20 @@ def run(
         raise CocdError(f"memory cap must be > 0 GiB, got {memory_gb!r}")
     memory = default_memory_gb() if memory_gb is None else float(memory_gb)
 
-    dims = {name: HARD_CASES[name]().dim for name in names}
+    scenes = {name: HARD_CASES[name]() for name in names}
+    dims = {name: scene.dim for name, scene in scenes.items()}
     chosen = {d: select_solvers(solvers, d) for d in sorted(set(dims.values()))}
     if not any(chosen.values()):
         raise CocdError(
             f"none of the solvers {solvers!r} handles the {'/'.join(map(str, chosen))}D "
             "hard cases chosen"
         )
+    estimate.announce(
+        "hard",
+        [(scene.n_free, steps * len(chosen[scene.dim])) for scene in scenes.values()],
+        out=Path(out),
+        progress=progress,
+    )
 
     rows = []
     with _Worker(memory, grace) as worker:

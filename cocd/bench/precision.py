@@ -64,7 +64,7 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
 import solvers as backends
-from cocd.bench import select_solvers
+from cocd.bench import estimate, select_solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
@@ -373,6 +373,18 @@ def run(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
+    sizes = {"column-2d": n2d, "box-3d": n3d}
+    estimate.announce(
+        "precision",
+        [
+            # The trajectory to the problem, then each backend's sweep, cold and warm.
+            (sizes[c.label], round(c.t_start / c.dt) + 2 * len(chosen[c.label]) * len(tol_list))
+            for c in cases
+            if chosen[c.label]
+        ],
+        out=out,
+        progress=progress,
+    )
 
     instances: list[_Instance] = []
     warmups: dict[int, ConicProblem] = {}

@@ -22,14 +22,17 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
+from cocd.bench import estimate
 from cocd.errors import CocdError
 
 __all__ = [
     "command_line",
     "machine_info",
     "machine_line",
+    "previous_table",
     "write_meta",
     "write_readme",
     "write_table",
@@ -159,6 +162,38 @@ def write_table(
     return [csv, md]
 
 
+def previous_table(
+    path: Path,
+    columns: list[str],
+    *,
+    optional: frozenset[str] = frozenset(),
+    filled: frozenset[str] = frozenset(),
+) -> pd.DataFrame | None:
+    """An earlier table to resume from: None when ``path`` does not exist or lacks
+    only columns in ``optional`` (written by an older version, nothing to reuse).
+    Columns in ``filled`` that it lacks are added, empty (NaN).
+
+    Raises
+    ------
+    CocdError
+        When the file cannot be read or lacks other columns.
+    """
+    if not path.is_file():
+        return None
+    try:
+        old = pd.read_csv(path, keep_default_na=False, na_values=[""])
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise CocdError(f"cannot resume from {path}: {exc}") from None
+    for column in sorted(filled - set(old.columns)):
+        old[column] = np.nan
+    missing = set(columns) - set(old.columns)
+    if missing and missing <= optional:
+        return None
+    if missing:
+        raise CocdError(f"cannot resume from {path}: columns {sorted(missing)} are missing")
+    return old
+
+
 def write_meta(
     out: Path,
     name: str,
@@ -178,6 +213,7 @@ def write_meta(
         "written": _dt.datetime.now().isoformat(timespec="seconds"),
         "files": sorted({os.path.relpath(p, out) for p in files}),
         "summary": summary,
+        **estimate.record(),
     }
     path = out / f"{name}.meta.json"
     path.write_text(json.dumps(meta, indent=2) + "\n")

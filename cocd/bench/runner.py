@@ -14,6 +14,12 @@ child was killed and ``error`` when the backend raised), ``iterations``,
 ``coulomb_residual``, ``dynamics_residual``, ``u_error``, ``polished``,
 ``note``. Rows without an answer carry NaN residuals. Rows from a
 :class:`Worker` also carry ``peak_rss_gib``, the child's peak resident memory.
+
+Besides the columns, an answered row holds ``phases``: seconds by phase of the
+call, from the backend's own clocks where it keeps them (``ipm``: ``setup``,
+``assemble``, ``factor``, ``solve``, ``check``, ``polish``), otherwise only
+``setup``; ``other`` is the rest of ``wall_s``. ``factorisations`` and
+``linsolve`` are those an interior point reports (NaN and "" otherwise).
 """
 
 from __future__ import annotations
@@ -118,6 +124,14 @@ def solve_row(
         return row
     wall = time.perf_counter() - start
     attempts = sol.extras.get("attempts", [])
+    phases = {"setup": float(sol.setup_time)}
+    phases.update({str(k): float(v) for k, v in (sol.extras.get("times") or {}).items()})
+    phases["other"] = max(0.0, wall - sum(phases.values()))
+    row.update(
+        phases=phases,
+        factorisations=float(sol.extras.get("factorisations", np.nan)),
+        linsolve=str(sol.extras.get("linsolve", "")),
+    )
     row.update(
         status=sol.status.value,
         iterations=sol.iterations,

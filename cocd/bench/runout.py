@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from cocd.bench import estimate
 from cocd.bench import validate as base
 from cocd.errors import CocdError
 
@@ -116,6 +117,19 @@ def scaling(
     )
     out = Path(out)
     frame_dt = base._frame_interval([0.01], [dt])
+    # About 0.8 of the column's area is discs.
+    estimate.announce(
+        "runout_scaling",
+        [
+            (
+                0.8 * area / (math.pi * diameter**2 / 4),
+                max(min_time, rest_T * math.sqrt(math.sqrt(area * a) / G)) / dt,
+            )
+            for a in aspects
+        ],
+        out=out,
+        progress=progress,
+    )
     rows = []
     series = []
     for a in aspects:

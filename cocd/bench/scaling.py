@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cocd.bench import select_solvers
-from cocd.bench.report import write_meta, write_table
+from cocd.bench import estimate, select_solvers
+from cocd.bench.report import previous_table, write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import record_steps
 from cocd.bench.table1 import CHANNEL_WIDTH, D_SEED_3D, MU_3D
@@ -183,6 +183,22 @@ def run(
         for n in sorted(box_sizes if packing == "box" else n3d)
     ]
     names = {dim: select_solvers(solvers, dim) for dim in (2, 3)}
+
+    def prep(dim: int, packing: str) -> int:  # steps that make the problems
+        if packing != "column":
+            return 0
+        return round(T_START_2D / DT_2D) if dim == 2 else round(T_START_3D / DT_3D)
+
+    estimate.announce(
+        "scaling",
+        [
+            (n, prep(dim, packing) + steps * len(names[dim]))
+            for dim, packing, n in cases
+            if names[dim]
+        ],
+        out=Path(out),
+        progress=progress,
+    )
     # A backend that ran out of time at one size is not tried at larger ones.
     given_up: dict[tuple[int, str, str], str] = {}
     with Worker(memory_gb=memory) as worker:
@@ -246,15 +262,9 @@ def run(
 
 def _previous_rows(path: Path) -> dict[tuple[str, int, str, float], dict[str, Any]]:
     """The 3D rows of an earlier ``scaling.csv``, keyed by (packing, N, solver, eps)."""
-    if not path.is_file():
+    old = previous_table(path, COLUMNS)
+    if old is None:
         return {}
-    try:
-        old = pd.read_csv(path, keep_default_na=False, na_values=[""])
-    except (OSError, ValueError, pd.errors.ParserError) as exc:
-        raise CocdError(f"cannot resume from {path}: {exc}") from None
-    missing = set(COLUMNS) - set(old.columns)
-    if missing:
-        raise CocdError(f"cannot resume from {path}: columns {sorted(missing)} are missing")
     rows = {}
     for rec in old[old["dim"] == 3][COLUMNS].to_dict("records"):
         rec["note"] = "" if pd.isna(rec["note"]) else str(rec["note"])

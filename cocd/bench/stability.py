@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from cocd.bench import report, select_solvers
+from cocd.bench import estimate, report, select_solvers
 from cocd.builders import static_box
 from cocd.errors import CocdError
 from cocd.scene import Scene
@@ -192,6 +192,9 @@ def run(
     series: list[dict[str, Any]] = []
     summary: list[dict[str, Any]] = []
     runs = [(s, e) for s in names for e in eps_values]
+    estimate.announce(
+        "stability", [(scene.n_free, n_steps * len(runs))], out=out, progress=progress
+    )
     for k, (solver, eps) in enumerate(runs, 1):
         args = (scene.copy(), solver, eps, dt, n_steps, time_limit, ep_shift, period)
         t0 = time.perf_counter()

@@ -126,12 +126,7 @@ def record_steps(
         Wall seconds between two checkpoints.
     """
     scene = make_scene()
-    key = _key(label, scene, dt, t_start, n_steps, solver, tol)
-    if prep_tol is not None:
-        key = hashlib.sha256(f"{key}|prep_tol={float(prep_tol)!r}".encode()).hexdigest()
-    if d_max is not None:
-        key = hashlib.sha256(f"{key}|d_max={float(d_max)!r}".encode()).hexdigest()
-    path = cache_dir() / "bench" / f"{label}-{key[:16]}.pkl"
+    path, key = cache_path(label, scene, dt, t_start, n_steps, solver, tol, prep_tol, d_max)
     partial = path.with_suffix(".partial.pkl")
     if cache:
         seq = _read(path, key)
@@ -208,6 +203,26 @@ def record_steps(
         _write(path, key, seq)
         partial.unlink(missing_ok=True)
     return seq
+
+
+def cache_path(
+    label: str,
+    scene: Scene,
+    dt: float,
+    t_start: float,
+    n_steps: int,
+    solver: str,
+    tol: float,
+    prep_tol: float | None = None,
+    d_max: float | None = None,
+) -> tuple[Path, str]:
+    """The cache file of :func:`record_steps` for these arguments, and its key."""
+    key = _key(label, scene, dt, t_start, n_steps, solver, tol)
+    if prep_tol is not None:
+        key = hashlib.sha256(f"{key}|prep_tol={float(prep_tol)!r}".encode()).hexdigest()
+    if d_max is not None:
+        key = hashlib.sha256(f"{key}|d_max={float(d_max)!r}".encode()).hexdigest()
+    return cache_dir() / "bench" / f"{label}-{key[:16]}.pkl", key
 
 
 def _key(

@@ -42,10 +42,10 @@ import numpy as np
 import pandas as pd
 
 import solvers
-from cocd.bench import select_solvers
-from cocd.bench.report import write_meta, write_table
+from cocd.bench import estimate, select_solvers
+from cocd.bench.report import previous_table, write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
-from cocd.bench.states import StepSequence, record_steps
+from cocd.bench.states import StepSequence, cache_path, record_steps
 from cocd.builders import column_2d, column_collapse
 from cocd.errors import CocdError
 from cocd.scene import Scene
@@ -53,6 +53,14 @@ from cocd.scene import Scene
 __all__ = ["COLUMNS", "SEED_ROWS", "run"]
 
 #: Columns of ``table1.csv``, in order.
+#: Phases of a step's solve in the time breakdown (``t_<phase>_s``): the backend's
+#: set-up, and for ``ipm`` the assembly of the reduced system, its numerical
+#: factorisations, the triangular solves, the residual checks and the polish;
+#: ``other`` is the rest of the wall time (for most backends: all their iterations).
+PHASES = ("setup", "assemble", "factor", "solve", "check", "polish", "other")
+#: Columns an older table1.csv may lack; they are read as empty.
+_LATER_COLUMNS = frozenset({"factorisations", *(f"t_{phase}_s" for phase in PHASES)})
+
 COLUMNS = [
     "source",
     "case",
@@ -70,6 +78,8 @@ COLUMNS = [
     "time_per_step_s",
     "ccp_residual",
     "coulomb_residual",
+    "factorisations",
+    *(f"t_{phase}_s" for phase in PHASES),
     "scale",
     "note",
 ]
@@ -239,6 +249,29 @@ def run(
         make = partial(column_collapse, 3, n_grains=n, width=CHANNEL_WIDTH, bed="rough", mu=MU_3D)
         plan.append((CASE_3D, f"table1-column-3d-{n}", make, DT_3D, t_start_3d, EPS_3D, 3,
                      scale_3d, PREP_TOL_3D, D_SEED_3D))  # fmt: skip
+
+    def prep_steps(label: str, make: Callable[[], Scene], dt: float, t0: float,
+                   prep_tol: float | None, d_r: float, dim: int) -> int:  # fmt: skip
+        """Steps of the trajectory to the recorded ones: none when they are cached."""
+        scene = make()
+        d_max = d_r * float(scene.radii.mean())
+        path, _ = cache_path(label, scene, dt, t0, steps, trajectory[dim], TRAJECTORY_TOL,
+                             prep_tol, d_max)  # fmt: skip
+        return 0 if path.is_file() else round(t0 / dt) + steps
+
+    estimate.announce(
+        "table1",
+        [
+            (
+                int(label.rsplit("-", 1)[1]),
+                prep_steps(label, make, dt, t0, prep_tol, d_r, dim)
+                + steps * len(eps_list) * len(names[dim]),
+            )
+            for _, label, make, dt, t0, eps_list, dim, _, prep_tol, d_r in plan
+        ],
+        out=Path(out),
+        progress=progress,
+    )
     for case, label, make, dt, t0, eps_list, dim, case_scale, prep_tol, d_r in plan:
         _case(
             case,
@@ -420,22 +453,16 @@ def _previous_rows(path: Path) -> dict[tuple[int, int, float, str, float], dict[
     """Rows of this machine in an earlier ``table1.csv``, keyed by (dim, N, eps, solver,
     detection threshold); a table written before the threshold was a column has none
     to reuse (its problems were detected with another threshold)."""
-    if not path.is_file():
+    old = previous_table(
+        path, COLUMNS, optional=frozenset({"Nc_per_grain", "d_max_r"}), filled=_LATER_COLUMNS
+    )
+    if old is None:
         return {}
-    try:
-        old = pd.read_csv(path)
-    except (OSError, ValueError, pd.errors.ParserError) as exc:
-        raise CocdError(f"cannot resume from {path}: {exc}") from None
-    missing = set(COLUMNS) - set(old.columns)
-    if missing and missing <= {"Nc_per_grain", "d_max_r"}:
-        return {}  # written before the threshold was a column: nothing to reuse
-    if missing:
-        raise CocdError(f"cannot resume from {path}: columns {sorted(missing)} are missing")
     old = old[old["source"] == THIS_MACHINE].astype(object)
     old = old.where(pd.notna(old), None)
     rows: dict[tuple[int, int, float, str, float], dict[str, Any]] = {}
     numbers = ("Nc", "Nc_per_grain", "d_max_r", "iterations", "time_per_step_s",
-               "ccp_residual", "coulomb_residual")  # fmt: skip
+               "ccp_residual", "coulomb_residual", *_LATER_COLUMNS)  # fmt: skip
     for rec in old[COLUMNS].to_dict("records"):
         rec["note"] = rec["note"] or ""
         rec["steps_ok"] = rec["steps_ok"] or ""
@@ -474,6 +501,11 @@ def _summarise(
         "time_per_step_s": _mean(returned, "wall_s"),
         "ccp_residual": _max(answers, "ccp_residual"),
         "coulomb_residual": _max(answers, "coulomb_residual"),
+        "factorisations": _mean(returned, "factorisations"),
+        **{
+            f"t_{phase}_s": _mean([a.get("phases") or {} for a in returned], phase)
+            for phase in PHASES
+        },
         "note": "; ".join(notes)[:300],
         "first_status": statuses[0] if statuses else "",
     }
@@ -573,7 +605,22 @@ def _write(
     counts = _contact_counts(table)
     if counts:
         summary += "\n\nPotential contacts per grain:\n\n" + "\n".join(counts)
+    breakdown = _breakdown(table)
+    if breakdown:
+        summary += "\n\n" + breakdown
     write_meta(out, "table1", title=title, files=files, summary=summary)
+
+
+def _breakdown(table: pd.DataFrame) -> str:
+    """Where a step's time goes, for the rows whose backend times its phases (ipm)."""
+    phases = [f"t_{phase}_s" for phase in PHASES]
+    mine = table[(table["source"] == THIS_MACHINE) & table["t_factor_s"].notna()]
+    if mine.empty:
+        return ""
+    cols = ["N", "eps", "solver", "iterations", "factorisations", "time_per_step_s", *phases]
+    return "Time per step by phase (s; `t_other_s`: the rest of the wall time):\n\n" + mine[
+        cols
+    ].to_markdown(index=False, floatfmt=".3g")
 
 
 def _contact_counts(table: pd.DataFrame) -> list[str]:

@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
-from cocd.bench import report
+from cocd.bench import estimate, report
 from cocd.errors import CocdError
 
 __all__ = [
@@ -355,6 +355,9 @@ def timestep(
     out = Path(out)
     params = _base_params(n, mu)
     frame_dt = _frame_interval(times, dts)
+    estimate.announce(
+        "timestep", [(n, round(max(times) / dt)) for dt in dts], out=out, progress=progress
+    )
     series = []
     for dt in dts:
         label = f"n{n}_dt{dt:.0e}"
@@ -511,6 +514,7 @@ def nscd(
     times = sorted({round(t * period / frame_dt) * frame_dt for t in times_T})
     if times[0] <= 0.0:
         raise CocdError(f"times_T {times_T} round to t = 0 s: ask for later times")
+    estimate.announce("nscd", [(n, 2 * round(max(times) / dt))], out=out, progress=progress)
     runs = []
     for solver, solver_tol, extra in (
         (convex, tol, {"fallback": fallback}),
@@ -645,6 +649,12 @@ def erodible(
     d_mean = 2.0 * float(column_collapse(2, n_grains=n, cache=False).radii.mean())
     frame_dt = _frame_interval([0.01], [dt])
     window = RUNOUT_WINDOW * until
+    estimate.announce(
+        "erodible",
+        [(n, round(until / dt) * len(slopes) * len(layers))],
+        out=out,
+        progress=progress,
+    )
     rows = []
     fronts: dict[tuple[float, float], CollapseSeries] = {}
     for slope in slopes:

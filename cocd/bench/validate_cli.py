@@ -15,8 +15,9 @@ from typing import Annotated
 
 import typer
 
-from cocd.bench.cli import _fail, _floats
+from cocd.bench.cli import _floats
 from cocd.errors import CocdError
+from cocd.exits import fail
 
 validate_app = typer.Typer(
     rich_markup_mode=None,
@@ -59,7 +60,7 @@ def _go(job: Callable[[], object]) -> None:
     try:
         job()
     except CocdError as exc:
-        _fail(exc)
+        fail(exc)
 
 
 @validate_app.command()

@@ -1,0 +1,52 @@
+"""Run-time estimates of the harness commands (cocd.bench.estimate)."""
+
+import json
+
+import pytest
+
+from cocd.bench import estimate
+
+
+def test_work_grows_as_the_power_of_n_plus_a_cost_per_solve():
+    one = estimate.work([(1000, 1)])
+    assert one == pytest.approx(1.0 + estimate.PER_SOLVE)
+    big = estimate.work([(8000, 3)])
+    assert big == pytest.approx(3 * (8.0**estimate.EXPONENT + estimate.PER_SOLVE))
+    assert estimate.work([(1000, 2), (8000, 3)]) == pytest.approx(2 * one + big)
+    assert estimate.work([]) == 0.0
+
+
+@pytest.mark.parametrize(
+    "seconds, text",
+    [(0.2, "1 s"), (40.4, "40 s"), (600, "10 min"), (5400, "1.5 h"), (float("nan"), "unknown")],
+)
+def test_format_seconds(seconds, text):
+    assert estimate.format_seconds(seconds) == text
+
+
+def test_shipped_rate_then_the_recorded_run(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # no ./results records
+    lines: list[str] = []
+    solves = [(2000, 10)]
+    first = estimate.announce("hard", solves, out=tmp_path, progress=lines.append)
+    assert first == pytest.approx(estimate.RATES["hard"] * estimate.work(solves))
+    assert lines[-1].startswith("hard: 10 solves, the largest of 2000 grains; expected ")
+    assert "from timings on a 2-core machine" in lines[-1]
+    # A finished run records its time and work; the next estimate scales from it.
+    record = estimate.record()
+    assert set(record) == {"elapsed_s", "work_units"}
+    assert record["work_units"] == pytest.approx(estimate.work(solves), rel=1e-6)
+    meta = tmp_path / "hard.meta.json"
+    meta.write_text(json.dumps({"elapsed_s": 120.0, "work_units": record["work_units"]}))
+    again = estimate.announce("hard", [(2000, 20)], out=tmp_path, progress=lines.append)
+    assert again == pytest.approx(240.0, rel=1e-6)
+    assert f"scaled from the run recorded in {meta}" in lines[-1] and "4 min" in lines[-1]
+
+
+def test_unreadable_record_falls_back_to_the_shipped_rate(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "table1.meta.json").write_text("{not json")
+    lines: list[str] = []
+    seconds = estimate.announce("table1", [(500, 4)], out=tmp_path, progress=lines.append)
+    assert seconds == pytest.approx(estimate.RATES["table1"] * estimate.work([(500, 4)]))
+    assert "from timings on a 2-core machine" in lines[-1]
