@@ -65,7 +65,15 @@ import scipy.sparse as sp
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
-from solvers._ipm_kernels import cone_blocks, fill_reduced, pair_positions
+from solvers._ipm_kernels import (
+    cone_blocks,
+    fill_linear,
+    fill_reduced,
+    linear_groups,
+    max_step_linear,
+    max_step_soc,
+    pair_positions,
+)
 from solvers.base import Solution, Status
 from solvers.polish import polish_impulses
 
@@ -79,7 +87,16 @@ DEFAULT_MAX_ITER = 100
 STEP_FRACTION = 0.99
 STALL_ITERATIONS = 6
 REFINE_STEPS = 6
-_OPTIONS = {"linsolve", "threads", "polish"}
+#: Gondzio's correctors (Gondzio 1996; Colombo and Gondzio 2008): the trial step
+#: min(1, STRETCH alpha + ADD), the band [BETA_MIN, BETA_MAX] sigma mu of the target
+#: products, and the fraction of the aimed-at gain a corrector must give to be kept.
+GONDZIO_STRETCH, GONDZIO_ADD = 1.0, 0.2
+BETA_MIN, BETA_MAX = 0.1, 10.0
+GONDZIO_ACCEPT = 0.1
+DEFAULT_CORRECTORS = 2
+#: Most consecutive nonnegative rows on the same unknowns assembled as one group.
+LINEAR_GROUP = 4
+_OPTIONS = {"linsolve", "threads", "polish", "correctors"}
 
 
 def _installed(module: str) -> bool:
@@ -316,11 +333,10 @@ class _Cones:
         rb = scale[:, None] * np.concatenate([r0[:, None], r1], axis=1)
         return self.join(ra, rb)
 
-    def theta_blocks(self, sc: dict[str, Any], gmax: int) -> Any:
-        """``Theta = W^-2`` per cone, shape ``(l + k, gmax, gmax)``."""
-        G = self.l + self.k
-        theta = np.zeros((G, gmax, gmax))
-        theta[: self.l, 0, 0] = 1.0 / sc["wl"] ** 2
+    def theta_blocks(self, sc: dict[str, Any]) -> tuple[Any, Any]:
+        """``Theta = W^-2``: ``(l,)`` on the nonnegative rows, ``(k, 3, 3)`` per cone."""
+        theta_lin = 1.0 / sc["wl"] ** 2
+        theta_soc = np.zeros((self.k, 3, 3))
         if self.k:
             wbar, eta = sc["wbar"], sc["eta"]
             a, bvec = wbar[:, 0], wbar[:, 1:]
@@ -332,8 +348,8 @@ class _Cones:
                 np.eye(2)[None] + bvec[:, :, None] * bvec[:, None, :] / (1.0 + a)[:, None, None]
             )
             Winv /= eta[:, None, None]
-            theta[self.l :, :3, :3] = np.einsum("kij,kjl->kil", Winv, Winv)
-        return theta
+            theta_soc = np.einsum("kij,kjl->kil", Winv, Winv)
+        return theta_lin, theta_soc
 
     def product(self, u: Any, v: Any) -> Any:
         """Jordan product ``u o v``."""
@@ -359,44 +375,36 @@ class _Cones:
         """Largest ``alpha`` with ``x + alpha d`` in the cone (``x`` interior), capped at 1e30."""
         xa, xb = self.split(x)
         da, db = self.split(d)
-        best = 1e30
-        neg = da < 0.0
-        if np.any(neg):
-            best = min(best, float(np.min(-xa[neg] / da[neg])))
+        best = float(max_step_linear(xa, da)) if self.l else 1e30
         if self.k:
-            c = xb[:, 0] ** 2 - np.sum(xb[:, 1:] ** 2, axis=1)
-            bq = xb[:, 0] * db[:, 0] - np.sum(xb[:, 1:] * db[:, 1:], axis=1)
-            a = db[:, 0] ** 2 - np.sum(db[:, 1:] ** 2, axis=1)
-            disc = bq * bq - a * c
-            cross = (a < 0.0) | ((bq < 0.0) & (disc >= 0.0))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                alpha = np.where(
-                    cross, np.maximum(c, 0.0) / (-bq + np.sqrt(np.maximum(disc, 0.0))), np.inf
-                )
-                lin = np.where(db[:, 0] < 0.0, -xb[:, 0] / db[:, 0], np.inf)
-            alpha = np.minimum(np.where(np.isfinite(alpha) & (alpha >= 0.0), alpha, np.inf), lin)
-            if alpha.size:
-                best = min(best, float(alpha.min()))
+            best = min(best, float(max_step_soc(xb, db)))
         return best
 
 
 class ReducedSystem:
     """The pattern and the assembly of ``K = P + A' Theta A`` (upper triangle, CSR).
 
-    Cones are groups of rows of ``A`` (``n_lin`` single rows, then ``k`` groups of
-    three); each keeps its rows densely on the unknowns it touches. The pattern
-    holds every pair of unknowns a cone touches (a second-order cone's block of
-    ``Theta`` couples all of them), built from the cone-unknown incidence ``C`` as
-    ``C'C`` so that no entry vanishes by cancellation (in 2D the rows ``N + mu T``
-    and ``N - mu T`` of a contact cancel in ``A'A``).
+    The rows of ``A`` are assembled in groups: runs of consecutive nonnegative
+    rows on the same unknowns (the two half-planes of a 2D contact: one pass
+    over the pair instead of two), then the ``k`` second-order cones of three
+    rows. Each group keeps its rows densely on the unknowns it touches. The
+    pattern holds every pair of unknowns a group touches (a second-order cone's
+    block of ``Theta`` couples all of them), built from the group-unknown
+    incidence ``C`` as ``C'C`` so that no entry vanishes by cancellation (in 2D
+    the rows ``N + mu T`` and ``N - mu T`` of a contact cancel in ``A'A``).
     """
 
     def __init__(self, A: sp.csr_matrix, n_lin: int, k: int, pdiag: Any) -> None:
         n = A.shape[1]
-        self.group_start = np.concatenate([np.arange(n_lin), n_lin + 3 * np.arange(k)]).astype(
-            np.int64
+        lin_start, lin_size = linear_groups(
+            A.indptr.astype(np.int64), A.indices.astype(np.int64), n_lin, LINEAR_GROUP
         )
-        self.group_size = np.concatenate([np.ones(n_lin), 3 * np.ones(k)]).astype(np.int64)
+        self.n_lin, self.k, self.n_lin_groups = n_lin, k, int(lin_start.size)
+        self.group_start = np.concatenate([lin_start, n_lin + 3 * np.arange(k)]).astype(np.int64)
+        self.group_size = np.concatenate([lin_size, 3 * np.ones(k)]).astype(np.int64)
+        # Group and place in its group of every nonnegative row.
+        self.lin_group = np.repeat(np.arange(lin_start.size), lin_size)
+        self.lin_slot = np.arange(n_lin) - lin_start[self.lin_group]
         self.dofs, self.nq, self.local = cone_blocks(A, self.group_start, self.group_size)
         touched = self.dofs >= 0
         C = sp.csr_matrix(
@@ -417,13 +425,34 @@ class ReducedSystem:
     def gmax(self) -> int:
         return int(self.local.shape[1])
 
-    def fill(self, theta: Any, out: Any = None) -> Any:
-        """The values of ``K`` on :attr:`pattern` for cone blocks ``theta (G, gmax, gmax)``."""
+    def fill(self, theta_lin: Any, theta_soc: Any, out: Any = None) -> Any:
+        """The values of ``K`` on :attr:`pattern` for ``Theta``: ``theta_lin (n_lin,)`` on
+        the nonnegative rows, ``theta_soc (k, 3, 3)`` the second-order cones' blocks."""
         if out is None:
             out = np.empty(self.pattern.nnz)
-        fill_reduced(
-            self.base, self.dofs, self.nq, self.local, self.group_size, theta, self.pos, out
-        )
+        out[:] = self.base
+        m = self.n_lin_groups
+        if m:
+            fill_linear(
+                self.dofs[:m],
+                self.nq[:m],
+                self.local[:m],
+                self.group_start[:m],
+                self.group_size[:m],
+                np.ascontiguousarray(theta_lin, dtype=np.float64),
+                self.pos[:m],
+                out,
+            )
+        if self.k:
+            fill_reduced(
+                self.dofs[m:],
+                self.nq[m:],
+                self.local[m:],
+                self.group_size[m:],
+                np.ascontiguousarray(theta_soc, dtype=np.float64),
+                self.pos[m:],
+                out,
+            )
         return out
 
 
@@ -449,6 +478,7 @@ def ipm_solve_problem(
         raise ProblemError(f"ipm: linsolve must be one of {LINSOLVES}, got {linsolve!r}")
     threads = int(options.get("threads", 2))
     polish = bool(options.get("polish", True))
+    correctors = int(options.get("correctors", DEFAULT_CORRECTORS))
     cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
     start = time.perf_counter()
     times = {
@@ -474,16 +504,16 @@ def ipm_solve_problem(
 
     At = sp.csr_matrix(A.T)  # A' is applied several times per iteration
     red = ReducedSystem(A, n_lin, k, pdiag)
-    diag_pos, gmax = red.diag_pos, red.gmax
+    diag_pos = red.diag_pos
     K = red.pattern.copy()
     data = np.empty(red.pattern.nnz)
     lin: Any = None
     reg = [0.0]  # the diagonal shift of the last factorisation (relative)
     times["setup"] = time.perf_counter() - start
 
-    def factor(theta: Any) -> None:
+    def factor(theta: tuple[Any, Any]) -> None:
         t0 = time.perf_counter()
-        red.fill(theta, data)
+        red.fill(*theta, data)
         t1 = time.perf_counter()
         times["assemble"] += t1 - t0
         nonlocal lin
@@ -514,13 +544,13 @@ def ipm_solve_problem(
     def kmul(v: Any) -> Any:
         return pdiag * v + At @ (theta_mul(A @ v))
 
-    theta_cur: list[Any] = [None]
+    theta_cur: list[tuple[Any, Any]] = []
 
     def theta_mul(v: Any) -> Any:
-        th = theta_cur[0]
+        theta_lin, theta_soc = theta_cur[0]
         va, vb = cones.split(v)
-        ra = th[:n_lin, 0, 0] * va
-        rb = np.einsum("kij,kj->ki", th[n_lin:, :3, :3], vb) if k else vb
+        ra = theta_lin * va
+        rb = np.einsum("kij,kj->ki", theta_soc, vb) if k else vb
         return cones.join(ra, rb)
 
     def solve_k(rhs: Any) -> Any:
@@ -542,9 +572,7 @@ def ipm_solve_problem(
     best: tuple[float, Any, Any] | None = None
     try:
         # Initial point: Theta = I, x = (P + A'A)^-1 A'b, s = b - A x, z = -s, shifted inside.
-        theta_cur[0] = np.zeros((n_lin + k, gmax, gmax))
-        theta_cur[0][:, range(gmax), range(gmax)] = 1.0
-        theta_cur[0][:n_lin, 1:, 1:] = 0.0
+        theta_cur.append((np.ones(n_lin), np.broadcast_to(np.eye(3), (k, 3, 3))))
         factor(theta_cur[0])
         x = solve_k(At @ b)
         r = b - A @ x
@@ -582,7 +610,7 @@ def ipm_solve_problem(
             rz = A @ x + s - b
             sc = cones.scaling(s, z)
             lam = cones.apply_w(sc, z)
-            theta = cones.theta_blocks(sc, gmax)
+            theta = cones.theta_blocks(sc)
             theta_cur[0] = theta
             factor(theta)
 
@@ -608,7 +636,27 @@ def ipm_solve_problem(
                 + sigma * mu * cones.identity()
             )
             dx, ds, dz = direction(cones.divide(lam, rc))
-            alpha = min(1.0, STEP_FRACTION * min(cones.max_step(s, ds), cones.max_step(z, dz)))
+            step = min(cones.max_step(s, ds), cones.max_step(z, dz))
+            # Gondzio's centrality correctors on the nonnegative rows: aim at a longer
+            # step, push the products s_i z_i that the trial point leaves outside
+            # [BETA_MIN, BETA_MAX] sigma mu back in, and keep the correction while it
+            # lengthens the step. Each costs one solve with the same factor.
+            for _ in range(correctors if n_lin else 0):
+                if step >= 1.0:
+                    break
+                target = min(1.0, GONDZIO_STRETCH * step + GONDZIO_ADD)
+                v = (s[:n_lin] + target * ds[:n_lin]) * (z[:n_lin] + target * dz[:n_lin])
+                smu = sigma * mu
+                dv = np.maximum(np.clip(v, BETA_MIN * smu, BETA_MAX * smu) - v, -BETA_MAX * smu)
+                zero_x, zero_z = np.zeros_like(rx), np.zeros_like(rz)
+                cx, cs, cz = direction(
+                    cones.divide(lam, np.concatenate([dv, np.zeros(3 * k)])), rx=zero_x, rz=zero_z
+                )
+                trial = min(cones.max_step(s, ds + cs), cones.max_step(z, dz + cz))
+                if trial < step + GONDZIO_ACCEPT * (target - step):
+                    break
+                dx, ds, dz, step = dx + cx, ds + cs, dz + cz, trial
+            alpha = min(1.0, STEP_FRACTION * step)
             history.append((it, mu, alpha, res))
             x = x + alpha * dx
             s = s + alpha * ds

@@ -41,13 +41,13 @@ def test_nesterov_todd_scaling_identities():
     v = rng.normal(size=s.size)
     assert np.allclose(cones.apply_w(sc, cones.apply_w(sc, v), inverse=True), v)
     # Theta = W^-2 block by block.
-    theta = cones.theta_blocks(sc, 3)
+    theta_lin, theta_soc = cones.theta_blocks(sc)
     W = np.column_stack([cones.apply_w(sc, e) for e in np.eye(s.size)])
     Winv2 = np.linalg.inv(W @ W)
-    assert np.allclose(theta[:4, 0, 0], np.diag(Winv2)[:4])
+    assert np.allclose(theta_lin, np.diag(Winv2)[:4])
     for c in range(5):
         rows = slice(4 + 3 * c, 7 + 3 * c)
-        assert np.allclose(theta[4 + c], Winv2[rows, rows])
+        assert np.allclose(theta_soc[c], Winv2[rows, rows])
     # lambda o (lambda \ r) = r.
     r = rng.normal(size=s.size)
     assert np.allclose(cones.product(lam, cones.divide(lam, r)), r)
@@ -78,17 +78,17 @@ def test_reduced_matrix_is_p_plus_a_theta_a(dim):
     k = sum(1 for kind, _ in form.cones if kind == "soc")
     pdiag = form.P.diagonal()
     red = ReducedSystem(A, n_lin, k, pdiag)
+    if dim == 2:  # the two half-planes of a contact (or more rows on one disc) are one group
+        assert n_lin == 2 * stepper.problem.nc
+        assert stepper.problem.nc / 2 <= red.n_lin_groups <= stepper.problem.nc
     rng = np.random.default_rng(4)
-    gmax = red.gmax
-    theta = np.zeros((n_lin + k, gmax, gmax))
-    theta[:n_lin, 0, 0] = rng.uniform(1e-3, 1e3, n_lin)
-    if k:
-        B = rng.normal(size=(k, 3, 3))
-        theta[n_lin:, :3, :3] = np.einsum("kij,klj->kil", B, B)
+    theta_lin = rng.uniform(1e-3, 1e3, n_lin)
+    B = rng.normal(size=(k, 3, 3))
+    theta_soc = np.einsum("kij,klj->kil", B, B)
     pattern = red.pattern
-    out = red.fill(theta)
+    out = red.fill(theta_lin, theta_soc)
     mine = sp.csr_matrix((out, pattern.indices, pattern.indptr), pattern.shape).toarray()
-    blocks = [sp.diags(theta[:n_lin, 0, 0])] + [sp.csr_matrix(t[:3, :3]) for t in theta[n_lin:]]
+    blocks = [sp.diags(theta_lin)] + [sp.csr_matrix(t) for t in theta_soc]
     expected = np.triu((sp.diags(pdiag) + A.T @ sp.block_diag(blocks) @ A).toarray())
     assert np.allclose(mine, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
 
