@@ -42,7 +42,10 @@ cocd                      ipm
 ``warm_start``            not used (an interior point starts from the centre)
 ``verbose``               one line per iteration
 ``**options``             ``linsolve`` (``pardiso``, ``cholmod``, ``qdldl``),
-                          ``threads`` (PARDISO's, default 2), ``polish``
+                          ``threads`` (PARDISO's, default 2), ``polish``,
+                          ``correctors`` (Gondzio correctors per iteration
+                          on the nonnegative rows, default 2; 0 for plain
+                          Mehrotra)
 ========================  =====================================================
 
 ``extras``: ``linsolve``, ``history`` (iteration, mu, step, ccp_residual),
