@@ -163,3 +163,16 @@ def _first_problem():
     stepper = Stepper(column_2d(30), 1e-3)
     stepper.step()
     return stepper.problem
+
+
+def test_gondzio_correctors_keep_the_answer_and_save_iterations():
+    scene = column_2d(600, seed=7)
+    stepper = Stepper(scene, 1e-3, tol=1e-10)
+    stepper.run(30)
+    problem = stepper.problem
+    plain = solvers.solve(problem, "ipm", tol=1e-9, correctors=0)
+    corrected = solvers.solve(problem, "ipm", tol=1e-9, correctors=2)
+    assert plain.status == corrected.status == "optimal"
+    scale = max(np.linalg.norm(plain.u), np.linalg.norm(problem.U))
+    assert np.linalg.norm(corrected.u - plain.u) <= 1e-6 * scale
+    assert corrected.iterations < plain.iterations
