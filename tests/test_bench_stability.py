@@ -197,20 +197,18 @@ def test_run_budget_stops_a_slow_run(tmp_path, monkeypatch):
 
 def test_child_failure_and_hang_are_rows(tmp_path):
     """In a child process: a backend error is a row; so is a child killed by the watchdog."""
-    # A microsecond per solve: clarabel stops with status time_limit at step 1.
+    # One iteration per solve: clarabel stops with status max_iter at step 1, on any
+    # machine (a microsecond time limit let a lightly loaded one finish a tiny solve).
     table = stability.run(
-        solvers="clarabel",
+        solvers="clarabel:max_iter=1",
         eps_list=[1e-8],
         out=tmp_path / "error",
         progress=lambda _: None,
-        **{**BASE, "time_limit": 1e-6},
+        **BASE,
     )
-    row = _row(table, "clarabel", 1e-8)
+    row = _row(table, "clarabel:max_iter=1", 1e-8)
     assert row["steps_done"] == 0 and not row["at_rest"]
-    # Clarabel stops at its first check of the clock; what it reports then varies with
-    # the machine's load (time_limit, or inaccurate with a residual far above tol).
-    assert "SolverError" in row["note"]
-    assert "time_limit" in row["note"] or "status inaccurate" in row["note"]
+    assert "SolverError" in row["note"] and "status max_iter" in row["note"]
     # No grace: the child cannot even start within 1.5 ms, so it is killed as hung.
     table = stability.run(
         solvers="clarabel",
