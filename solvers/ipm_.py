@@ -402,12 +402,9 @@ class ReducedSystem:
         lin_start, lin_size = linear_groups(
             A.indptr.astype(np.int64), A.indices.astype(np.int64), n_lin, LINEAR_GROUP
         )
-        self.n_lin, self.k, self.n_lin_groups = n_lin, k, int(lin_start.size)
+        self.k, self.n_lin_groups = k, int(lin_start.size)
         self.group_start = np.concatenate([lin_start, n_lin + 3 * np.arange(k)]).astype(np.int64)
         self.group_size = np.concatenate([lin_size, 3 * np.ones(k)]).astype(np.int64)
-        # Group and place in its group of every nonnegative row.
-        self.lin_group = np.repeat(np.arange(lin_start.size), lin_size)
-        self.lin_slot = np.arange(n_lin) - lin_start[self.lin_group]
         self.dofs, self.nq, self.local = cone_blocks(A, self.group_start, self.group_size)
         touched = self.dofs >= 0
         C = sp.csr_matrix(
@@ -423,10 +420,6 @@ class ReducedSystem:
         self.diag_pos = indptr[:-1].copy()  # the diagonal is each row's first upper entry
         self.base = np.zeros(pattern.nnz)
         self.base[self.diag_pos] = pdiag
-
-    @property
-    def gmax(self) -> int:
-        return int(self.local.shape[1])
 
     def fill(self, theta_lin: Any, theta_soc: Any, out: Any = None) -> Any:
         """The values of ``K`` on :attr:`pattern` for ``Theta``: ``theta_lin (n_lin,)`` on
@@ -644,6 +637,7 @@ def ipm_solve_problem(
             # step, push the products s_i z_i that the trial point leaves outside
             # [BETA_MIN, BETA_MAX] sigma mu back in, and keep the correction while it
             # lengthens the step. Each costs one solve with the same factor.
+            zero_x, zero_z = np.zeros_like(rx), np.zeros_like(rz)  # pure correctors
             for _ in range(correctors if n_lin else 0):
                 if step >= 1.0:
                     break
@@ -651,7 +645,6 @@ def ipm_solve_problem(
                 v = (s[:n_lin] + target * ds[:n_lin]) * (z[:n_lin] + target * dz[:n_lin])
                 smu = sigma * mu
                 dv = np.maximum(np.clip(v, BETA_MIN * smu, BETA_MAX * smu) - v, -BETA_MAX * smu)
-                zero_x, zero_z = np.zeros_like(rx), np.zeros_like(rz)
                 cx, cs, cz = direction(
                     cones.divide(lam, np.concatenate([dv, np.zeros(3 * k)])), rx=zero_x, rz=zero_z
                 )

@@ -131,8 +131,6 @@ def solve_row(
         phases=phases,
         factorisations=float(sol.extras.get("factorisations", np.nan)),
         linsolve=str(sol.extras.get("linsolve", "")),
-    )
-    row.update(
         status=sol.status.value,
         iterations=sol.iterations,
         setup_s=sol.setup_time,

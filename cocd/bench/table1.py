@@ -52,7 +52,6 @@ from cocd.scene import Scene
 
 __all__ = ["COLUMNS", "SEED_ROWS", "run"]
 
-#: Columns of ``table1.csv``, in order.
 #: Phases of a step's solve in the time breakdown (``t_<phase>_s``): the backend's
 #: set-up, and for ``ipm`` the assembly of the reduced system, its numerical
 #: factorisations, the triangular solves, the residual checks and the polish;
@@ -61,6 +60,7 @@ PHASES = ("setup", "assemble", "factor", "solve", "check", "polish", "other")
 #: Columns an older table1.csv may lack; they are read as empty.
 _LATER_COLUMNS = frozenset({"factorisations", *(f"t_{phase}_s" for phase in PHASES)})
 
+#: Columns of ``table1.csv``, in order.
 COLUMNS = [
     "source",
     "case",
