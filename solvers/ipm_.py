@@ -16,12 +16,10 @@ symbolic factorisation are computed once per solve. ``dz`` and ``ds`` follow
 by products with ``A`` and the cone blocks. Predictor and corrector share one
 numerical factorisation per iteration.
 
-Linear solvers (option ``linsolve``), chosen by measurement (8308-disc column,
-upper-triangular ``K`` with 0.27 M entries, L with 2.3 M; one numerical
-factorisation): PARDISO (Intel MKL, through ``pypardiso``, extra
-``pardiso``) 0.040 s on one thread and 0.022 s on two; CHOLMOD (through
-``cvxopt``) 0.043 s; QDLDL 0.19 s. The default is the first installed of
-``pardiso``, ``cholmod``, ``qdldl``.
+Linear solvers (option ``linsolve``): PARDISO (Intel MKL through ``pypardiso``, a
+dependency where MKL has wheels), CHOLMOD (through ``cvxopt``), QDLDL. The default
+is the first installed of these, the fastest first (their times per factorisation
+are in ``results/full/table1.md``).
 
 ========================  =====================================================
 cocd                      ipm
@@ -273,6 +271,8 @@ class _Cones:
         return v[: self.l], v[self.l :].reshape(self.k, 3)
 
     def join(self, a: Any, b: Any) -> Any:
+        if not self.k:  # 2D: nonnegative rows only, nothing to copy
+            return a
         return np.concatenate([a, b.reshape(-1)])
 
     def identity(self) -> Any:
