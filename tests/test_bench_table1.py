@@ -67,10 +67,34 @@ def test_table1_tiny_run(tmp_path, cache):
     meta = json.loads((out / "table1.meta.json").read_text())
     assert meta["files"] == ["table1.csv", "table1.md"]
     assert "| clarabel" in meta["summary"]
+    # The fastest backend with every step optimal, per size, from the same rows.
+    assert "Fastest backend with every step optimal:" in meta["summary"]
+    for n in (20, 51):
+        rows = ours[(ours.N == n) & (ours.steps_ok == "2/2")]
+        best = rows.loc[rows.time_per_step_s.idxmin()]
+        assert f"- {n} discs, eps 1e-08: {best.solver}," in meta["summary"]
     assert any("recording" in line for line in lines)
     assert any("clarabel eps 1e-08 step 2/2" in line for line in lines)
     # The recorded problems are cached, so that every later run reuses them.
     assert list((cache / "bench").glob("table1-column-2d-20-*.pkl"))
+
+
+def test_fastest_backend_needs_every_step_optimal():
+    nan = float("nan")
+    mine = dict(source=table1.THIS_MACHINE, dim=2, N=100, eps=1e-8)
+    table = pd.DataFrame(
+        [
+            {**mine, "solver": "fast", "steps_ok": "9/10", "time_per_step_s": 0.1},
+            {**mine, "solver": "ipm", "steps_ok": "10/10", "time_per_step_s": 0.5},
+            {**mine, "solver": "clarabel", "steps_ok": "10/10", "time_per_step_s": 2.0},
+            {**mine, "N": 200, "solver": "ipm", "steps_ok": "0/10", "time_per_step_s": 1.0},
+            {**mine, "N": 200, "solver": "clarabel", "steps_ok": "0/0", "time_per_step_s": nan},
+        ]
+    )
+    assert table1._fastest(table) == [
+        "- 100 discs, eps 1e-08: ipm, 0.5 s per step; clarabel 2 s (4 times as long)",
+        "- 200 discs, eps 1e-08: no backend solved every step to optimal",
+    ]
 
 
 def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):

@@ -605,10 +605,48 @@ def _write(
     counts = _contact_counts(table)
     if counts:
         summary += "\n\nPotential contacts per grain:\n\n" + "\n".join(counts)
+    fastest = _fastest(table)
+    if fastest:
+        summary += "\n\nFastest backend with every step optimal:\n\n" + "\n".join(fastest)
     breakdown = _breakdown(table)
     if breakdown:
         summary += "\n\n" + breakdown
     write_meta(out, "table1", title=title, files=files, summary=summary)
+
+
+def _fastest(table: pd.DataFrame, reference: str = "clarabel") -> list[str]:
+    """One line per (dim, N, eps) of this machine: the fastest backend whose every step
+    was solved to ``optimal``, beside ``reference`` in the same run."""
+    mine = table[table["source"] == THIS_MACHINE]
+    lines = []
+    for (dim, n, eps), rows in mine.groupby(["dim", "N", "eps"], sort=True):
+        kind = "discs" if dim == 2 else "spheres"
+        head = f"- {n} {kind}, eps {eps:g}: "
+        done = rows[rows["steps_ok"].map(_all_optimal) & rows["time_per_step_s"].notna()]
+        if done.empty:
+            lines.append(head + "no backend solved every step to optimal")
+            continue
+        best = done.loc[done["time_per_step_s"].idxmin()]
+        line = head + f"{best['solver']}, {best['time_per_step_s']:.3g} s per step"
+        ref = rows[rows["solver"] == reference]
+        if best["solver"] != reference and not ref.empty:
+            r = ref.iloc[0]
+            t = r["time_per_step_s"]
+            if _all_optimal(r["steps_ok"]) and _finite(t):
+                ratio = float(t) / float(best["time_per_step_s"])
+                line += f"; {reference} {float(t):.3g} s ({ratio:.3g} times as long)"
+            else:
+                line += f"; {reference} {r['steps_ok']} optimal" + (
+                    f" at {float(t):.3g} s per step solved" if _finite(t) else ""
+                )
+        lines.append(line)
+    return lines
+
+
+def _all_optimal(steps_ok: object) -> bool:
+    """True for ``"k/k"`` with ``k > 0``."""
+    ok, _, total = str(steps_ok).partition("/")
+    return ok.isdigit() and ok == total and int(ok) > 0
 
 
 def _breakdown(table: pd.DataFrame) -> str:
