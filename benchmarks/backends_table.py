@@ -25,14 +25,9 @@ Writes ``<out>/backends.csv`` and ``<out>/backends.md``.
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
 import os
-import pickle
 import platform
-import resource
 import sys
-import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +36,7 @@ import pandas as pd
 import cocd
 import solvers
 from cocd.bench.report import write_meta
-from cocd.residuals import ccp_residual, coulomb_residual
+from cocd.bench.runner import Worker
 
 CACHE = Path(__file__).parent / ".cache"
 COLUMNS = [
@@ -90,83 +85,11 @@ def prepared_problem(dim: int, n: int, steps: int) -> cocd.ConicProblem:
     return cocd.assemble(scene, cocd.detect_contacts(scene), 1e-3)
 
 
-def _child(problem_path: str, name: str, tol: float, time_limit: float, memory_gb: float, queue):
-    limit = int(memory_gb * 2**30)
-    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    with open(problem_path, "rb") as f:
-        problem = pickle.load(f)
-    try:
-        sol = solvers.solve(problem, name, tol=tol, time_limit=time_limit)
-        queue.put(
-            (
-                "ok",
-                sol.u,
-                sol.p,
-                sol.status.value,
-                sol.iterations,
-                sol.setup_time,
-                sol.solve_time,
-                sol.extras.get("approximation", ""),
-                len(sol.extras.get("attempts", [])),
-                any(a[3] for a in sol.extras.get("attempts", [])),
-            )
-        )
-    except MemoryError:
-        queue.put(("error", f"out of memory (cap {memory_gb:g} GiB)"))
-    except Exception as exc:  # the harness reports every failure as a row
-        queue.put(("error", f"{type(exc).__name__}: {str(exc)[:200]}"))
-
-
-def run_backend(problem_path, problem, name, tol, time_limit, memory_gb, ref_u):
-    ctx = mp.get_context("spawn")
-    queue = ctx.Queue()
-    proc = ctx.Process(target=_child, args=(problem_path, name, tol, time_limit, memory_gb, queue))
-    start = time.perf_counter()
-    proc.start()
-    grace = time_limit * 1.5 + 60
-    result = None
-    while proc.is_alive() and time.perf_counter() - start < grace:
-        try:
-            result = queue.get(timeout=1.0)
-            break
-        except Exception:
-            continue
-    if result is None and not queue.empty():
-        result = queue.get()
-    proc.join(timeout=5)
-    if proc.is_alive():
-        proc.kill()
-        proc.join()
-    row = {"backend": name, "formulation": solvers.get(name).formulation}
-    if result is None:
-        code = proc.exitcode
-        why = "killed after time limit" if code is None or code < 0 else f"exit code {code}"
-        return {
-            **row,
-            "status": "time_limit" if code is None or code < 0 else "error",
-            "note": f"{why} ({time.perf_counter() - start:.0f} s)",
-        }
-    if result[0] == "error":
-        return {**row, "status": "error", "note": result[1]}
-    _, u, p, status, iterations, setup, solve, approximation, solves, polished = result
-    row.update(
-        status=status,
-        iterations=iterations,
-        setup_s=setup,
-        solve_s=solve,
-        solves=solves,
-        polished=polished,
-        note=approximation,
-    )
-    if status not in ("optimal", "inaccurate"):
-        return row  # no answer: no residuals
-    scale = max(np.linalg.norm(ref_u), np.linalg.norm(problem.U))
-    return {
-        **row,
-        "ccp_residual": ccp_residual(problem, p),
-        "coulomb_residual": coulomb_residual(problem, p),
-        "u_error": float(np.linalg.norm(u - ref_u) / scale),
-    }
+def run_backend(worker: Worker, problem, name, tol, time_limit, ref_u) -> dict:
+    """One row: ``name`` on ``problem`` in the harness's child process."""
+    row = worker.solve_row(problem, name, tol, time_limit=time_limit, ref_u=ref_u)
+    keep = {c: row.get(c) for c in COLUMNS if c in row}
+    return {**keep, "backend": name, "solves": row.get("solves")}
 
 
 def main() -> None:
@@ -188,10 +111,7 @@ def main() -> None:
     for label, dim, n, steps in (("column-2d", 2, args.n2d, 30), ("box-3d", 3, args.n3d, 20)):
         problem = prepared_problem(dim, n, steps)
         ref = solvers.solve(problem, "clarabel", tol=1e-10)
-        with tempfile.NamedTemporaryFile(suffix=".pkl", delete=False) as f:
-            pickle.dump(problem, f)
-            path = f.name
-        try:
+        with Worker(memory_gb=args.memory_gb, grace=60.0) as worker:
             for name in names:
                 info = solvers.get(name)
                 run_name = name
@@ -200,9 +120,7 @@ def main() -> None:
                         continue
                     run_name = f"{name}:facets=8"
                 print(f"{label}: {run_name} ...", flush=True)
-                row = run_backend(
-                    path, problem, run_name, args.tol, args.time_limit, args.memory_gb, ref.u
-                )
+                row = run_backend(worker, problem, run_name, args.tol, args.time_limit, ref.u)
                 row.update(
                     problem=label,
                     dim=dim,
@@ -216,8 +134,6 @@ def main() -> None:
                     flush=True,
                 )
                 rows.append(row)
-        finally:
-            os.unlink(path)
 
     table = pd.DataFrame(rows, columns=COLUMNS)
     out = Path(args.out)

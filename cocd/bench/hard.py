@@ -49,10 +49,7 @@ from __future__ import annotations
 
 import inspect
 import math
-import multiprocessing as mp
-import queue as queue_mod
 import re
-import resource
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -65,6 +62,7 @@ import solvers
 from cocd.bench import estimate, select_solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import default_memory_gb
+from cocd.bench.worker import Worker, short
 from cocd.builders import HARD_CASES
 from cocd.errors import CocdError
 
@@ -147,8 +145,12 @@ def _warm_up(solver: str, dim: int, tol: float) -> None:
         pass  # the timed run will report whatever is wrong
 
 
-def _run_job(job: dict[str, Any], answers: Any, warmed: set[tuple[str, int]]) -> None:
-    """Step one case with one backend, sending one message per step, then the end."""
+_WARMED: set[tuple[str, int]] = set()  # (backend, dim) the child has loaded
+
+
+def _run_job(emit: Callable[[Any], None], job: dict[str, Any]) -> dict[str, Any]:
+    """Child process: step one case with one backend; a ``("start", ...)`` event, one
+    ``("step", ...)`` event per step, and the end (status, note, steps done)."""
     from cocd.errors import SolverError
     from cocd.measure import kinetic_energy, potential_energy
     from cocd.stepper import Stepper
@@ -158,7 +160,7 @@ def _run_job(job: dict[str, Any], answers: Any, warmed: set[tuple[str, int]]) ->
         scene = HARD_CASES[job["case"]]()
         free = scene.free
         ek0 = kinetic_energy(scene)
-        answers.put(
+        emit(
             (
                 "start",
                 {
@@ -171,9 +173,9 @@ def _run_job(job: dict[str, Any], answers: Any, warmed: set[tuple[str, int]]) ->
                 },
             )
         )
-        if (job["solver"], scene.dim) not in warmed:
+        if (job["solver"], scene.dim) not in _WARMED:
             _warm_up(job["solver"], scene.dim, job["tol"])
-            warmed.add((job["solver"], scene.dim))
+            _WARMED.add((job["solver"], scene.dim))
         clock: list[float] = []
         real = solvers.solve
         solvers.solve = _timed_solve(real, clock)
@@ -188,7 +190,7 @@ def _run_job(job: dict[str, Any], answers: Any, warmed: set[tuple[str, int]]) ->
             for step in range(1, job["steps"] + 1):
                 clock.clear()
                 record = stepper.step()
-                answers.put(
+                emit(
                     (
                         "step",
                         {
@@ -209,105 +211,30 @@ def _run_job(job: dict[str, Any], answers: Any, warmed: set[tuple[str, int]]) ->
     except SolverError as exc:
         match = re.search(r"returned status (\w+)", str(exc))
         status = match.group(1) if match else "error"
-        answers.put(("end", {"status": status, "note": _short(exc), "step": step}))
-        return
+        return {"status": status, "note": short(exc), "step": step}
     except MemoryError:
-        note = f"out of memory (cap {job['memory_gb']:g} GiB)"
-        answers.put(("end", {"status": "error", "note": note, "step": step}))
-        return
+        return {"status": "error", "note": f"out of memory (cap {job['memory_gb']:g} GiB)",
+                "step": step}  # fmt: skip
     except Exception as exc:
-        note = f"{type(exc).__name__}: {_short(exc)}"
-        answers.put(("end", {"status": "error", "note": note, "step": step}))
-        return
-    answers.put(("end", {"status": None, "note": "", "step": job["steps"]}))
+        return {"status": "error", "note": f"{type(exc).__name__}: {short(exc)}", "step": step}
+    return {"status": None, "note": "", "step": job["steps"]}
 
 
-def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
-    """Child process: run jobs until told to stop."""
-    if memory_gb is not None:
-        limit = int(memory_gb * 2**30)
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    warmed: set[tuple[str, int]] = set()
-    while True:
-        job = jobs.get()
-        if job is None:
-            return
-        _run_job(job, answers, warmed)
-
-
-def _short(exc: BaseException) -> str:
-    return " ".join(str(exc).split())[:300]
-
-
-class _Worker:
-    """A child process that steps hard cases; killed and restarted when a job overruns."""
-
-    def __init__(self, memory_gb: float | None, grace: float) -> None:
-        self.memory_gb = memory_gb
-        self.grace = grace
-        self._ctx = mp.get_context("spawn")
-        self._proc: Any = None
-        self._jobs: Any = None
-        self._answers: Any = None
-
-    def __enter__(self) -> _Worker:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        if self._proc is not None and self._proc.is_alive():
-            self._jobs.put(None)
-            self._proc.join(timeout=5)
-            if self._proc.is_alive():
-                self._proc.kill()
-                self._proc.join()
-        self._proc = None
-
-    def _kill(self) -> int | None:
-        code: int | None = self._proc.exitcode
-        self._proc.kill()
-        self._proc.join()
-        self._proc = None
-        return code
-
-    def run(self, job: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any]], dict]:
-        """Run ``job``; the start message, the step messages and the end message."""
-        if self._proc is None or not self._proc.is_alive():
-            self._jobs, self._answers = self._ctx.Queue(), self._ctx.Queue()
-            self._proc = self._ctx.Process(
-                target=_serve, args=(self._jobs, self._answers, self.memory_gb), daemon=True
-            )
-            self._proc.start()
-        job = {**job, "memory_gb": self.memory_gb or math.inf}
-        self._jobs.put(job)
-        limit = 1.5 * job["steps"] * job["time_limit"] + self.grace
-        start = time.perf_counter()
-        head: dict[str, Any] = {}
-        steps: list[dict[str, Any]] = []
-        while True:
-            elapsed = time.perf_counter() - start
-            try:
-                kind, body = self._answers.get(timeout=max(0.05, min(1.0, limit - elapsed)))
-            except queue_mod.Empty:
-                elapsed = time.perf_counter() - start
-                if self._proc.is_alive() and elapsed <= limit:
-                    continue
-                code = self._kill()
-                if code is None:
-                    status, note = "time_limit", f"killed after {elapsed:.0f} s"
-                elif code < 0:
-                    status, note = "error", f"child killed by signal {-code}"
-                else:
-                    status, note = "error", f"child exited with code {code}"
-                return head, steps, {"status": status, "note": note, "step": len(steps)}
-            if kind == "start":
-                head = body
-            elif kind == "step":
-                steps.append(body)
-            else:
-                return head, steps, body
+def _run(worker: Worker, job: dict[str, Any], grace: float) -> tuple[dict, list[dict], dict]:
+    """Run ``job`` in ``worker``: the start message, the step messages and the end."""
+    job = {**job, "memory_gb": worker.memory_gb or math.inf}
+    limit = 1.5 * job["steps"] * job["time_limit"] + grace
+    outcome = worker.run(_run_job, job, limit=limit)
+    head: dict[str, Any] = {}
+    steps: list[dict[str, Any]] = []
+    for kind, body in outcome.events:
+        if kind == "start":
+            head = body
+        else:
+            steps.append(body)
+    if outcome.status == "done":
+        return head, steps, outcome.result
+    return head, steps, {"status": outcome.status, "note": outcome.note, "step": len(steps)}
 
 
 # -- rows, matrix, plot ------------------------------------------------------
@@ -545,7 +472,7 @@ def run(
     )
 
     rows = []
-    with _Worker(memory, grace) as worker:
+    with Worker(memory) as worker:
         for case in names:
             dim = dims[case]
             for solver in chosen[dim]:
@@ -558,7 +485,7 @@ def run(
                     time_limit=float(time_limit),
                 )
                 start = time.perf_counter()
-                head, records, end = worker.run(job)
+                head, records, end = _run(worker, job, grace)
                 row = _row(job, dim, head, records, end)
                 rows.append(row)
                 progress(

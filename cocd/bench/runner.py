@@ -19,15 +19,14 @@ Besides the columns, an answered row holds ``phases``: seconds by phase of the
 call, from the backend's own clocks where it keeps them (``ipm``: ``setup``,
 ``assemble``, ``factor``, ``solve``, ``check``, ``polish``), otherwise only
 ``setup``; ``other`` is the rest of ``wall_s``. ``factorisations`` and
-``linsolve`` are those an interior point reports (NaN and "" otherwise).
+``linsolve`` are those an interior point reports (NaN and "" otherwise); ``solves``
+the native solves made to reach the tolerance (1 without refinement).
 """
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 import pickle
-import queue as queue_mod
 import resource
 import tempfile
 import time
@@ -38,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import solvers
+from cocd.bench.worker import Worker as ChildWorker
 from cocd.problem import ConicProblem
 from cocd.residuals import residuals
 
@@ -137,6 +137,7 @@ def solve_row(
         solve_s=sol.solve_time,
         wall_s=wall,
         polished=bool(any(a[3] for a in attempts)) if attempts else False,
+        solves=len(attempts) if attempts else 1,
         note=str(sol.extras.get("approximation", "")),
     )
     # max_iter and time_limit answers carry impulses too: their residuals say how
@@ -167,35 +168,23 @@ def _usable(problem: ConicProblem, u: Any, p: Any) -> bool:
     )
 
 
-def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
-    """Child process: solve jobs until told to stop; problems are cached by path."""
-    if memory_gb is not None:
-        limit = int(memory_gb * 2**30)
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    cached: tuple[str, ConicProblem] | None = None
-    while True:
-        job = jobs.get()
-        if job is None:
-            return
-        path, kwargs = job
-        try:
-            if cached is None or cached[0] != path:
-                cached = None  # free the previous problem before loading the next
-                with open(path, "rb") as f:
-                    cached = (path, pickle.load(f))
-            row = solve_row(cached[1], **kwargs)
-            # The child's peak resident memory so far (Linux reports KiB).
-            row["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-            answers.put(row)
-        except MemoryError:
-            cached = None
-            answers.put({"status": "error", "note": f"out of memory (cap {memory_gb:g} GiB)"})
-        except Exception as exc:
-            answers.put({"status": "error", "note": f"{type(exc).__name__}: {str(exc)[:300]}"})
+_LOADED: dict[str, Any] = {}  # the child's last problem, by path
+
+
+def _solve_job(emit: Any, path: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Child process: one row for the problem pickled at ``path`` (kept loaded)."""
+    if _LOADED.get("path") != path:
+        _LOADED.clear()  # free the previous problem before loading the next
+        with open(path, "rb") as f:
+            _LOADED.update(path=path, problem=pickle.load(f))
+    row = solve_row(_LOADED["problem"], **kwargs)
+    # The child's peak resident memory so far (Linux reports KiB).
+    row["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    return row
 
 
 class Worker:
-    """A child process that solves step problems under a wall-clock limit and a memory cap.
+    """Solves step problems in a child process (:class:`cocd.bench.worker.Worker`).
 
     A job that overruns ``1.5 * time_limit + grace`` seconds kills the child,
     which is restarted for the next job; the row says ``time_limit``. Problems
@@ -211,10 +200,7 @@ class Worker:
     def __init__(self, memory_gb: float | None = None, grace: float = 30.0) -> None:
         self.memory_gb = memory_gb
         self.grace = grace
-        self._ctx = mp.get_context("spawn")
-        self._proc: Any = None
-        self._jobs: Any = None
-        self._answers: Any = None
+        self._child = ChildWorker(memory_gb)
         self._dir = tempfile.TemporaryDirectory(prefix="cocd-bench-")
         self._paths: dict[int, str] = {}
         self._problems: list[ConicProblem] = []
@@ -232,20 +218,7 @@ class Worker:
 
     def restart(self) -> None:
         """Stop the child (a new one starts with the next job): its peak memory starts afresh."""
-        if self._proc is not None and self._proc.is_alive():
-            self._jobs.put(None)
-            self._proc.join(timeout=5)
-            if self._proc.is_alive():
-                self._proc.kill()
-                self._proc.join()
-        self._proc = None
-
-    def _start(self) -> None:
-        self._jobs, self._answers = self._ctx.Queue(), self._ctx.Queue()
-        self._proc = self._ctx.Process(
-            target=_serve, args=(self._jobs, self._answers, self.memory_gb), daemon=True
-        )
-        self._proc.start()
+        self._child.close()
 
     def _path(self, problem: ConicProblem) -> str:
         key = id(problem)
@@ -275,8 +248,6 @@ class Worker:
         Each problem is written to disk once per worker (keyed by identity) and
         kept alive by the worker until :meth:`close`.
         """
-        if self._proc is None or not self._proc.is_alive():
-            self._start()
         kwargs = dict(
             solver=solver,
             tol=tol,
@@ -286,28 +257,12 @@ class Worker:
             ref_u=ref_u,
             keep_solution=keep_solution,
         )
-        self._jobs.put((self._path(problem), kwargs))
         limit = None if time_limit is None else 1.5 * time_limit + self.grace
-        start = time.perf_counter()
-        while True:
-            try:
-                answer: dict[str, Any] = self._answers.get(timeout=1.0)
-                break
-            except queue_mod.Empty:
-                elapsed = time.perf_counter() - start
-                if not self._proc.is_alive() or (limit is not None and elapsed > limit):
-                    code = self._proc.exitcode
-                    self._proc.kill()
-                    self._proc.join()
-                    self._proc = None
-                    if code is None:
-                        status, note = "time_limit", f"killed after {elapsed:.0f} s"
-                    elif code < 0:
-                        status, note = "error", f"killed by signal {-code} ({elapsed:.0f} s)"
-                    else:
-                        status, note = "error", f"child exited with code {code}"
-                    answer = {"status": status, "note": note, "wall_s": elapsed}
-                    break
+        outcome = self._child.run(_solve_job, self._path(problem), kwargs, limit=limit)
+        if outcome.status == "done":
+            answer = dict(outcome.result)
+        else:
+            answer = {"status": outcome.status, "note": outcome.note, "wall_s": outcome.elapsed}
         row: dict[str, Any] = {c: np.nan for c in ROW_COLUMNS}
         row.update(solver=solver, polished=False, note="")
         try:

@@ -29,8 +29,6 @@ backend raises) ends the run the same way, in the child or in process.
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
-import queue as queue_mod
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -41,6 +39,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from cocd.bench import estimate, report, select_solvers
+from cocd.bench.worker import Worker
 from cocd.builders import static_box
 from cocd.errors import CocdError
 from cocd.scene import Scene
@@ -333,10 +332,13 @@ def _run_here(
     return steps, ""
 
 
-def _child(args: RunArgs, answers: Any) -> None:
-    """Child process: stream the trajectory's events to the parent."""
+def _child(emit: Callable[[Any], None], args: RunArgs) -> dict[str, Any] | None:
+    """Child process: stream the trajectory's step events; the last event is the result."""
     for event in _trajectory(*args):
-        answers.put(event)
+        if event["kind"] != "step":
+            return event
+        emit(event)
+    return None
 
 
 def _run_isolated(
@@ -346,72 +348,25 @@ def _run_isolated(
     on_step: Callable[[dict[str, Any]], None],
     budget: float = math.inf,
 ) -> tuple[list[dict[str, Any]], str]:
-    """Run in a spawned child; a crash, a silence longer than the watchdog or a
-    spent ``budget`` (wall seconds for the whole run) ends the run."""
-    ctx = mp.get_context("spawn")
-    answers = ctx.Queue()
-    proc = ctx.Process(target=_child, args=(args, answers), daemon=True)
-    limit = math.inf if time_limit is None else 1.5 * time_limit + grace
-    steps: list[dict[str, Any]] = []
-    note = ""
-    finished = False
-    proc.start()
-    try:
-        last = start = time.perf_counter()
-        while True:
-            if time.perf_counter() - start > budget:
-                note = _budget_note(budget, steps)
-                break
-            try:
-                event = answers.get(timeout=min(1.0, max(limit, 0.01)))
-            except queue_mod.Empty:
-                silent = time.perf_counter() - last
-                if not proc.is_alive():
-                    # A child that died may have left messages in the pipe.
-                    drained = _drain(answers)
-                    steps += [e for e in drained if e["kind"] == "step"]
-                    ended = [e for e in drained if e["kind"] != "step"]
-                    if ended:
-                        note = str(ended[0].get("note", ""))
-                    else:
-                        code = proc.exitcode
-                        how = f"signal {-code}" if code is not None and code < 0 else f"code {code}"
-                        note = f"child process died ({how}) after step {len(steps)}"
-                    break
-                if silent > limit:
-                    note = (
-                        f"killed: no answer for {silent:.0f} s after step {len(steps)} "
-                        f"(limit 1.5 x time_limit + {grace:g} s)"
-                    )
-                    break
-                continue
-            last = time.perf_counter()
-            if event["kind"] == "step":
-                steps.append(event)
-                on_step(event)
-            else:
-                note = str(event.get("note", ""))
-                finished = True
-                break
-    finally:
-        # A child that said it is done exits by itself; any other is killed now
-        # (hung, or the parent is being interrupted).
-        if finished:
-            proc.join(timeout=5.0)
-        if proc.is_alive():
-            proc.kill()
-        proc.join()
-        answers.close()
-    return steps, note
-
-
-def _drain(answers: Any) -> list[dict[str, Any]]:
-    events = []
-    while True:
-        try:
-            events.append(answers.get(timeout=0.2))
-        except queue_mod.Empty:
-            return events
+    """Run in a fresh child (:class:`~cocd.bench.worker.Worker`); a crash, a silence
+    longer than the watchdog or a spent ``budget`` (wall seconds for the whole run)
+    ends the run."""
+    silence = math.inf if time_limit is None else 1.5 * time_limit + grace
+    with Worker() as worker:
+        outcome = worker.run(_child, args, silence=silence, budget=budget, on_event=on_step)
+    steps = outcome.events
+    if outcome.status == "done":
+        return steps, "" if outcome.result is None else str(outcome.result.get("note", ""))
+    if outcome.status == "budget":
+        return steps, _budget_note(budget, steps)
+    if outcome.status == "time_limit":
+        return steps, (
+            f"killed: no answer for {outcome.silent:.0f} s after step {len(steps)} "
+            f"(limit 1.5 x time_limit + {grace:g} s)"
+        )
+    if outcome.note.startswith(("killed by signal", "child exited")):
+        return steps, f"child process died ({outcome.note}) after step {len(steps)}"
+    return steps, outcome.note
 
 
 def _summary_row(
