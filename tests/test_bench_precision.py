@@ -12,14 +12,8 @@ import pytest
 from typer.testing import CliRunner
 
 from cocd.bench import precision
-from cocd.bench.precision import (
-    costs_to_target,
-    performance_profile,
-    performance_ratios,
-    sgm_table,
-    shifted_geometric_mean,
-    with_cold_runs_as_warm,
-)
+from cocd.bench.metrics import performance_profile, performance_ratios, shifted_geometric_mean
+from cocd.bench.precision import costs_to_target, sgm_table, with_cold_runs_as_warm
 from cocd.bench.runner import ROW_COLUMNS
 from cocd.errors import CocdError
 

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from cocd.bench import scaling
+from cocd.bench import metrics, scaling
 from cocd.cli import app
 from cocd.errors import CocdError
 
@@ -21,9 +21,9 @@ def cache(tmp_path, monkeypatch):
 
 def test_fit_exponent_recovers_a_power_law():
     n = np.array([100, 1000, 10000])
-    k, c = scaling.fit_exponent(n, 3e-4 * n**1.4)
+    k, c = metrics.fit_exponent(n, 3e-4 * n**1.4)
     assert k == pytest.approx(1.4) and c == pytest.approx(3e-4)
-    assert np.isnan(scaling.fit_exponent([100], [1.0])[0])
+    assert np.isnan(metrics.fit_exponent([100], [1.0])[0])
 
 
 def test_scaling_tiny_run(tmp_path, cache, monkeypatch):

@@ -150,7 +150,7 @@ def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path
 
 
 def test_two_power_laws_are_recovered():
-    from cocd.bench.runout import fit_two_power_laws
+    from cocd.bench.metrics import fit_two_power_laws
 
     a = np.geomspace(0.5, 10.0, 8)
     y = np.where(a < 3.0, 2.0 * a, 2.0 * 3.0 ** (1 / 3) * a ** (2 / 3))

@@ -27,12 +27,13 @@ import numpy as np
 import pandas as pd
 
 from cocd.bench import DEFAULT_SOLVERS, estimate, select_solvers
+from cocd.bench.metrics import table_profile
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.errors import CocdError, ProblemError
 from cocd.external import RECORD_KEYS
 
-__all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "performance_profile", "run"]
+__all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "run"]
 
 #: Suffixes of the files taken from the folder.
 SUFFIXES = (".hdf5", ".h5", ".dat")
@@ -174,25 +175,6 @@ def run(
     return table
 
 
-def performance_profile(
-    table: pd.DataFrame, solved: pd.Series, taus: np.ndarray
-) -> dict[str, np.ndarray]:
-    """Dolan-Moré profile: for each solver, the fraction of problems solved within
-    ``tau`` times the fastest time on that problem.
-
-    ``solved`` marks the rows that count; the problems are those any solver solved
-    (a problem nobody solves says nothing about relative speed).
-    """
-    from cocd.bench.precision import performance_profile as profile_of_costs
-
-    t = table.assign(t=np.where(solved, table["wall_s"], np.inf))
-    times = t.pivot_table(index="problem", columns="solver", values="t", aggfunc="min")
-    times = times.replace(np.nan, np.inf)
-    times = times[np.isfinite(times.min(axis=1))]
-    fractions = profile_of_costs(times.to_numpy(dtype=np.float64), taus)
-    return {str(solver): fractions[:, k] for k, solver in enumerate(times.columns)}
-
-
 def _write(
     table: pd.DataFrame, out: Path, *, tol: float, time_limit: float, coulomb_target: float
 ) -> None:
@@ -224,7 +206,7 @@ def _write(
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), sharey=True)
     summary_rows = []
     for ax, (label, solved) in zip(axes, criteria.items(), strict=True):
-        prof = performance_profile(tab, solved, taus) if len(tab) else {}
+        prof = table_profile(tab, solved, taus) if len(tab) else {}
         for solver, frac in sorted(prof.items()):
             ax.step(taus, frac, where="post", label=solver)
         ax.set_xscale("log")

@@ -61,10 +61,16 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 import solvers as backends
 from cocd.bench import estimate, select_solvers
+from cocd.bench.metrics import (
+    SGM_SHIFT,
+    performance_profile,
+    performance_ratios,
+    shifted_geometric_mean,
+)
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
@@ -91,10 +97,6 @@ FloatArray = NDArray[np.float64]
 
 #: Accuracy targets on ``ccp_residual`` of the profiles and geometric means.
 TARGETS = (1e-4, 1e-6, 1e-8)
-#: Shift (seconds) of the geometric means: times well under a second weigh
-#: as little as they matter to a user, so a 1 ms against 2 ms gap does not
-#: count like a 100 s against 200 s one.
-SGM_SHIFT = 1.0
 #: The reference answer's tolerance, and the accuracy it must reach to be
 #: trusted as the zero of ``u_error``.
 REFERENCE_TOL = 1e-10
@@ -140,85 +142,6 @@ class _Instance:
     ref_solver: str
     #: Two copies of ``problem`` with no cached data, alternated between jobs.
     copies: tuple[ConicProblem, ConicProblem]
-
-
-# -- pure maths: profiles and means -------------------------------------------
-def shifted_geometric_mean(times: ArrayLike, shift: float = SGM_SHIFT) -> float:
-    """``exp(mean(log(t + shift))) - shift`` of non-negative finite times.
-
-    Parameters
-    ----------
-    times : array_like
-        Seconds, at least one.
-    shift : float
-        Seconds added before the logarithm (and removed after); ``0`` gives
-        the plain geometric mean.
-
-    Returns
-    -------
-    float
-    """
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    if t.size == 0:
-        raise ValueError("shifted_geometric_mean of no times")
-    if not (np.all(np.isfinite(t)) and np.all(t >= 0.0)):
-        raise ValueError(f"times must be finite and >= 0, got {t}")
-    if not shift >= 0.0:
-        raise ValueError(f"shift must be >= 0, got {shift}")
-    return float(np.exp(np.mean(np.log(t + shift))) - shift)
-
-
-def performance_ratios(costs: ArrayLike) -> FloatArray:
-    """Dolan-Moré ratios ``r[i, s] = costs[i, s] / min_s costs[i, s]``.
-
-    Parameters
-    ----------
-    costs : (n_instances, n_solvers) array_like
-        Cost of each solver on each instance, ``inf`` when it did not solve it.
-
-    Returns
-    -------
-    (n_instances, n_solvers) array
-        ``inf`` where the solver did not solve the instance (and on every
-        solver of an instance no one solved).
-    """
-    c = np.asarray(costs, dtype=np.float64)
-    if c.ndim != 2:
-        raise ValueError(f"costs must be (instances, solvers), got shape {c.shape}")
-    if np.any(np.isnan(c)) or np.any(c < 0.0):
-        raise ValueError("costs must be >= 0 (inf for unsolved), not NaN")
-    best = c.min(axis=1, initial=np.inf, keepdims=True)
-    ratios = np.full(c.shape, np.inf)
-    solved = np.isfinite(c)
-    # A zero best cost (an instance every solver answers instantly) makes every
-    # solver that solved it tie at 1, rather than 0/0; an instance nobody solved
-    # (best = inf) has no solved entry to divide.
-    positive = np.isfinite(best) & (best > 0.0)
-    safe = np.where(positive, best, 1.0)
-    ratios[solved] = np.where(positive, c / safe, 1.0)[solved]
-    return ratios
-
-
-def performance_profile(costs: ArrayLike, taus: ArrayLike) -> FloatArray:
-    """Fraction of instances each solver solves within ``tau`` times the best cost.
-
-    Parameters
-    ----------
-    costs : (n_instances, n_solvers) array_like
-        As :func:`performance_ratios`; unsolved (``inf``) never counts.
-    taus : (n_taus,) array_like
-        Ratios ``>= 1`` at which to evaluate.
-
-    Returns
-    -------
-    (n_taus, n_solvers) array
-        ``rho_s(tau) = #{i : r[i, s] <= tau} / n_instances``.
-    """
-    r = performance_ratios(costs)
-    t = np.asarray(taus, dtype=np.float64).reshape(-1)
-    if r.shape[0] == 0:
-        return np.zeros((t.size, r.shape[1]))
-    return np.asarray((r[None, :, :] <= t[:, None, None]).mean(axis=1), dtype=np.float64)
 
 
 def costs_to_target(

@@ -32,58 +32,13 @@ from numpy.typing import NDArray
 
 from cocd.bench import estimate
 from cocd.bench import validate as base
+from cocd.bench.metrics import fit_two_power_laws
 from cocd.errors import CocdError
 
-__all__ = ["fit_two_power_laws", "scaling"]
+__all__ = ["scaling"]
 
 FloatArray = NDArray[np.float64]
 G = 9.81
-
-
-def fit_two_power_laws(
-    a: Sequence[float], y: Sequence[float], *, min_points: int = 2
-) -> dict[str, float]:
-    """Fit ``y = c1 a^k1`` below a split ``a_c`` and ``y = c2 a^k2`` above it.
-
-    The split is placed between two consecutive ``a`` (at their geometric mean)
-    where the summed squared residuals of ``log y`` are least, each side having at
-    least ``min_points`` points. Returns ``a_c``, ``k_low``, ``c_low``,
-    ``k_high``, ``c_high`` and ``k_all``, ``c_all`` (one law through every
-    point); NaN where a side has too few points.
-    """
-    av = np.asarray(a, dtype=float)
-    yv = np.asarray(y, dtype=float)
-    good = av.shape == yv.shape and av.size >= 2
-    good = good and bool(np.all(np.isfinite(av) & (av > 0) & np.isfinite(yv) & (yv > 0)))
-    if not good:
-        raise CocdError("power-law fits need at least two positive, finite (a, y) pairs")
-    x, z = np.log(av), np.log(yv)
-    order = np.argsort(x)
-    x, z = x[order], z[order]
-    k_all, c_all = np.polyfit(x, z, 1)
-    out = {"k_all": float(k_all), "c_all": float(math.exp(c_all))}
-    best: tuple[float, int] | None = None
-    for split in range(min_points, x.size - min_points + 1):
-        cost = 0.0
-        for part in (slice(0, split), slice(split, None)):
-            coef = np.polyfit(x[part], z[part], 1)
-            cost += float(np.sum((np.polyval(coef, x[part]) - z[part]) ** 2))
-        if best is None or cost < best[0]:
-            best = (cost, split)
-    if best is None:
-        out.update(a_c=math.nan, k_low=math.nan, c_low=math.nan, k_high=math.nan, c_high=math.nan)
-        return out
-    split = best[1]
-    k1, c1 = np.polyfit(x[:split], z[:split], 1)
-    k2, c2 = np.polyfit(x[split:], z[split:], 1)
-    out.update(
-        a_c=float(math.exp(0.5 * (x[split - 1] + x[split]))),
-        k_low=float(k1),
-        c_low=float(math.exp(c1)),
-        k_high=float(k2),
-        c_high=float(math.exp(c2)),
-    )
-    return out
 
 
 def scaling(

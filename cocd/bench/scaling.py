@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 
 from cocd.bench import estimate, select_solvers
+from cocd.bench.metrics import fit_exponent
 from cocd.bench.report import previous_table, write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import record_steps
@@ -49,7 +50,7 @@ from cocd.contacts import detect_contacts
 from cocd.errors import CocdError
 from cocd.problem import assemble
 
-__all__ = ["COLUMNS", "PACKINGS_3D", "fit_exponent", "run"]
+__all__ = ["COLUMNS", "PACKINGS_3D", "run"]
 
 COLUMNS = [
     "dim",
@@ -74,17 +75,6 @@ DT_3D, EPS_3D = 1e-2, 1e-5
 PACKINGS_3D = ("column", "box", "jammed_box")
 #: Start of the 3D column's timed steps (s): mid-flow.
 T_START_3D = 0.1
-
-
-def fit_exponent(n: Any, t: Any) -> tuple[float, float]:
-    """``(k, c)`` of ``t = c n^k`` by least squares on logarithms (NaN with < 2 points)."""
-    n = np.asarray(n, dtype=float)
-    t = np.asarray(t, dtype=float)
-    ok = np.isfinite(t) & (t > 0) & (n > 0)
-    if ok.sum() < 2:
-        return float("nan"), float("nan")
-    k, logc = np.polyfit(np.log(n[ok]), np.log(t[ok]), 1)
-    return float(k), float(math.exp(logc))
 
 
 def _problems_2d(n: int, steps: int, trajectory: str, progress: Callable[[str], None]) -> Any:

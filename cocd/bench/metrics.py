@@ -1,0 +1,186 @@
+"""The harness's statistics: shifted geometric means, Dolan-Moré performance
+profiles and power-law fits, shared by every study.
+
+Pure functions of numbers and tables; they read and write no files.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike, NDArray
+
+from cocd.errors import CocdError
+
+__all__ = [
+    "SGM_SHIFT",
+    "fit_exponent",
+    "fit_two_power_laws",
+    "performance_profile",
+    "performance_ratios",
+    "shifted_geometric_mean",
+    "table_profile",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Shift (seconds) of the geometric means: times well under a second weigh
+#: as little as they matter to a user, so a 1 ms against 2 ms gap does not
+#: count like a 100 s against 200 s one.
+SGM_SHIFT = 1.0
+
+
+def shifted_geometric_mean(times: ArrayLike, shift: float = SGM_SHIFT) -> float:
+    """``exp(mean(log(t + shift))) - shift`` of non-negative finite times.
+
+    Parameters
+    ----------
+    times : array_like
+        Seconds, at least one.
+    shift : float
+        Seconds added before the logarithm (and removed after); ``0`` gives
+        the plain geometric mean.
+
+    Returns
+    -------
+    float
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if t.size == 0:
+        raise ValueError("shifted_geometric_mean of no times")
+    if not (np.all(np.isfinite(t)) and np.all(t >= 0.0)):
+        raise ValueError(f"times must be finite and >= 0, got {t}")
+    if not shift >= 0.0:
+        raise ValueError(f"shift must be >= 0, got {shift}")
+    return float(np.exp(np.mean(np.log(t + shift))) - shift)
+
+
+def performance_ratios(costs: ArrayLike) -> FloatArray:
+    """Dolan-Moré ratios ``r[i, s] = costs[i, s] / min_s costs[i, s]``.
+
+    Parameters
+    ----------
+    costs : (n_instances, n_solvers) array_like
+        Cost of each solver on each instance, ``inf`` when it did not solve it.
+
+    Returns
+    -------
+    (n_instances, n_solvers) array
+        ``inf`` where the solver did not solve the instance (and on every
+        solver of an instance no one solved).
+    """
+    c = np.asarray(costs, dtype=np.float64)
+    if c.ndim != 2:
+        raise ValueError(f"costs must be (instances, solvers), got shape {c.shape}")
+    if np.any(np.isnan(c)) or np.any(c < 0.0):
+        raise ValueError("costs must be >= 0 (inf for unsolved), not NaN")
+    best = c.min(axis=1, initial=np.inf, keepdims=True)
+    ratios = np.full(c.shape, np.inf)
+    solved = np.isfinite(c)
+    # A zero best cost (an instance every solver answers instantly) makes every
+    # solver that solved it tie at 1, rather than 0/0; an instance nobody solved
+    # (best = inf) has no solved entry to divide.
+    positive = np.isfinite(best) & (best > 0.0)
+    safe = np.where(positive, best, 1.0)
+    ratios[solved] = np.where(positive, c / safe, 1.0)[solved]
+    return ratios
+
+
+def performance_profile(costs: ArrayLike, taus: ArrayLike) -> FloatArray:
+    """Fraction of instances each solver solves within ``tau`` times the best cost.
+
+    Parameters
+    ----------
+    costs : (n_instances, n_solvers) array_like
+        As :func:`performance_ratios`; unsolved (``inf``) never counts.
+    taus : (n_taus,) array_like
+        Ratios ``>= 1`` at which to evaluate.
+
+    Returns
+    -------
+    (n_taus, n_solvers) array
+        ``rho_s(tau) = #{i : r[i, s] <= tau} / n_instances``.
+    """
+    r = performance_ratios(costs)
+    t = np.asarray(taus, dtype=np.float64).reshape(-1)
+    if r.shape[0] == 0:
+        return np.zeros((t.size, r.shape[1]))
+    return np.asarray((r[None, :, :] <= t[:, None, None]).mean(axis=1), dtype=np.float64)
+
+
+def table_profile(
+    table: pd.DataFrame, solved: pd.Series, taus: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Dolan-Moré profile: for each solver, the fraction of problems solved within
+    ``tau`` times the fastest time on that problem.
+
+    ``solved`` marks the rows that count; the problems are those any solver solved
+    (a problem nobody solves says nothing about relative speed).
+    """
+    t = table.assign(t=np.where(solved, table["wall_s"], np.inf))
+    times = t.pivot_table(index="problem", columns="solver", values="t", aggfunc="min")
+    times = times.replace(np.nan, np.inf)
+    times = times[np.isfinite(times.min(axis=1))]
+    fractions = performance_profile(times.to_numpy(dtype=np.float64), taus)
+    return {str(solver): fractions[:, k] for k, solver in enumerate(times.columns)}
+
+
+def fit_exponent(n: Any, t: Any) -> tuple[float, float]:
+    """``(k, c)`` of ``t = c n^k`` by least squares on logarithms (NaN with < 2 points)."""
+    n = np.asarray(n, dtype=float)
+    t = np.asarray(t, dtype=float)
+    ok = np.isfinite(t) & (t > 0) & (n > 0)
+    if ok.sum() < 2:
+        return float("nan"), float("nan")
+    k, logc = np.polyfit(np.log(n[ok]), np.log(t[ok]), 1)
+    return float(k), float(math.exp(logc))
+
+
+def fit_two_power_laws(
+    a: Sequence[float], y: Sequence[float], *, min_points: int = 2
+) -> dict[str, float]:
+    """Fit ``y = c1 a^k1`` below a split ``a_c`` and ``y = c2 a^k2`` above it.
+
+    The split is placed between two consecutive ``a`` (at their geometric mean)
+    where the summed squared residuals of ``log y`` are least, each side having at
+    least ``min_points`` points. Returns ``a_c``, ``k_low``, ``c_low``,
+    ``k_high``, ``c_high`` and ``k_all``, ``c_all`` (one law through every
+    point); NaN where a side has too few points.
+    """
+    av = np.asarray(a, dtype=float)
+    yv = np.asarray(y, dtype=float)
+    good = av.shape == yv.shape and av.size >= 2
+    good = good and bool(np.all(np.isfinite(av) & (av > 0) & np.isfinite(yv) & (yv > 0)))
+    if not good:
+        raise CocdError("power-law fits need at least two positive, finite (a, y) pairs")
+    x, z = np.log(av), np.log(yv)
+    order = np.argsort(x)
+    x, z = x[order], z[order]
+    k_all, c_all = np.polyfit(x, z, 1)
+    out = {"k_all": float(k_all), "c_all": float(math.exp(c_all))}
+    best: tuple[float, int] | None = None
+    for split in range(min_points, x.size - min_points + 1):
+        cost = 0.0
+        for part in (slice(0, split), slice(split, None)):
+            coef = np.polyfit(x[part], z[part], 1)
+            cost += float(np.sum((np.polyval(coef, x[part]) - z[part]) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, split)
+    if best is None:
+        out.update(a_c=math.nan, k_low=math.nan, c_low=math.nan, k_high=math.nan, c_high=math.nan)
+        return out
+    split = best[1]
+    k1, c1 = np.polyfit(x[:split], z[:split], 1)
+    k2, c2 = np.polyfit(x[split:], z[split:], 1)
+    out.update(
+        a_c=float(math.exp(0.5 * (x[split - 1] + x[split]))),
+        k_low=float(k1),
+        c_low=float(math.exp(c1)),
+        k_high=float(k2),
+        c_high=float(math.exp(c2)),
+    )
+    return out
