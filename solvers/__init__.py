@@ -92,6 +92,13 @@ def solve(
     time_limit = name_options.pop("time_limit", time_limit)
     verbose = bool(name_options.pop("verbose", verbose))
     options = {**info.options, **options, **name_options}
+    if info.accepts is not None:
+        unknown = sorted(set(options) - set(info.options) - set(info.accepts))
+        if unknown:
+            raise ProblemError(
+                f"{info.name} has no option {unknown[0]!r}; its options are "
+                f"{', '.join(info.accepts) or 'none'}"
+            )
     if info.linear_cones_only and not problem.is_qp and "facets" not in options:
         raise ProblemError(
             f"solver {solver!r} takes linear cones only, and this 3D frictional problem has "

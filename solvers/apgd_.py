@@ -98,7 +98,7 @@ from solvers._apgd_kernels import (
     weighted_square,
 )
 from solvers.base import Solution, Status
-from solvers.pgs_ import impulse_rms, positive_int, ratio, reject_options, start_impulses
+from solvers.pgs_ import ignore_polish, impulse_rms, positive_int, ratio, start_impulses
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -138,7 +138,7 @@ def apgd_solve_problem(
         ``iterations`` the accepted steps.
     """
     start = time.perf_counter()
-    reject_options("apgd", options, "check_every, scaling")
+    ignore_polish("apgd", options)
     check_every = positive_int(check_every, "check_every")
     cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
 

@@ -121,6 +121,10 @@ class SolverInfo:
         problems, or 3D friction through a faceted cone (option ``facets``).
     first_order : bool
         A first-order method: its attainable accuracy is limited.
+    accepts : tuple of str, optional
+        The options the backend takes besides ``options``; :func:`solvers.solve`
+        rejects any other with a message naming them. ``None`` for a backend that
+        hands its options on to a library that checks them (its native settings).
     """
 
     name: str
@@ -136,6 +140,7 @@ class SolverInfo:
     options: dict[str, Any] = field(default_factory=dict)
     linear_cones_only: bool = False
     first_order: bool = False
+    accepts: tuple[str, ...] | None = None
 
     def unavailable_reason(self) -> str | None:
         """Why the backend cannot be used here, or ``None`` if it can."""

@@ -77,7 +77,7 @@ from solvers._bgs_kernels import bgs_sweep, greedy_colours, support_depth
 from solvers._kernels import natural_map_sq
 from solvers.base import Solution, Status
 from solvers.nscd_ import contact_blocks
-from solvers.pgs_ import impulse_rms, positive_int, ratio, reject_options, start_impulses
+from solvers.pgs_ import ignore_polish, impulse_rms, positive_int, ratio, start_impulses
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -115,7 +115,7 @@ def bgs_solve_problem(
         ``iterations`` the sweeps made.
     """
     start = time.perf_counter()
-    reject_options("bgs", options, "order, colour, check_every")
+    ignore_polish("bgs", options)
     if order not in ORDERS:
         raise ProblemError(f"bgs: order must be one of {', '.join(ORDERS)}, got {order!r}")
     check_every = positive_int(check_every, "check_every")

@@ -81,7 +81,6 @@ if TYPE_CHECKING:
 __all__ = ["DEFAULT_MAX_SWEEPS", "nscd_solve_problem"]
 
 DEFAULT_MAX_SWEEPS = 20000
-_OPTIONS = {"relax", "symmetric", "check_every", "local"}
 _LOCAL = {"exact": LOCAL_EXACT, "fb": LOCAL_FB}
 
 
@@ -96,11 +95,6 @@ def nscd_solve_problem(
     **options: Any,
 ) -> Solution:
     """Solve the non-convex Coulomb law of ``problem`` by NSCD (see the module's table)."""
-    unknown = set(options) - _OPTIONS
-    if unknown:
-        raise ProblemError(
-            f"nscd has no option {sorted(unknown)[0]!r}; its options are {sorted(_OPTIONS)}"
-        )
     relax = float(options.get("relax", 1.0))
     if not 0.0 < relax <= 2.0:
         raise ProblemError(f"nscd: relax must be in (0, 2], got {relax}")

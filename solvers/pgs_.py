@@ -112,7 +112,7 @@ def pgs_solve_problem(
         ``iterations`` the sweeps made.
     """
     start = time.perf_counter()
-    reject_options("pgs", options, "omega, check_every")
+    ignore_polish("pgs", options)
     omega = relaxation(omega)
     check_every = positive_int(check_every, "check_every")
     sweeps_cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
@@ -214,23 +214,19 @@ def start_impulses(problem: ConicProblem, warm_start: NDArray[np.float64] | None
     return np.ascontiguousarray(project_coulomb(p0, problem.mu))
 
 
-def reject_options(solver: str, options: dict[str, Any], known: str) -> None:
-    """Raise :class:`ProblemError` for an unknown option; ``polish`` is accepted.
+def ignore_polish(solver: str, options: dict[str, Any]) -> None:
+    """Warn when ``polish=True`` is asked of an iterative method (its other options
+    are checked by :func:`solvers.solve` against its ``SolverInfo.accepts``).
 
     The iterative methods answer with their own iterates and never polish:
     ``polish=False`` (which the conformance suite passes to every backend) is
     what they do anyway, ``polish=True`` warns that it is ignored.
     """
-    options = dict(options)
-    if options.pop("polish", False):
+    if options.get("polish", False):
         warnings.warn(
             f"{solver} does not polish its answer; polish=True is ignored",
             UserWarning,
             stacklevel=3,
-        )
-    if options:
-        raise ProblemError(
-            f"{solver} has no option {sorted(options)[0]!r}; its options are {known}"
         )
 
 

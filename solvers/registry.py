@@ -99,6 +99,7 @@ def _builtin() -> list[SolverInfo]:
                 "Velocity-based primal (COCD) by cocd's interior point: Nesterov-Todd "
                 "scaling, reduced SPD system on the velocities, sparse Cholesky."
             ),
+            accepts=("linsolve", "threads", "polish", "correctors"),
         ),
         SolverInfo(
             name="clarabel-dual",
@@ -157,6 +158,7 @@ def _builtin() -> list[SolverInfo]:
             warm_start=True,
             first_order=True,
             description="Projected Gauss-Seidel on the cone complementarity problem.",
+            accepts=("omega", "check_every", "polish"),
         ),
         SolverInfo(
             name="bgs",
@@ -166,6 +168,7 @@ def _builtin() -> list[SolverInfo]:
             warm_start=True,
             first_order=True,
             description="Block Gauss-Seidel on the CCP with exact local (3 x 3) solves.",
+            accepts=("order", "colour", "check_every", "polish"),
         ),
         SolverInfo(
             name="apgd",
@@ -175,6 +178,7 @@ def _builtin() -> list[SolverInfo]:
             warm_start=True,
             first_order=True,
             description="Accelerated projected gradient descent (Nesterov, restart) on the dual.",
+            accepts=("check_every", "scaling", "polish"),
         ),
         SolverInfo(
             name="nscd",
@@ -185,6 +189,7 @@ def _builtin() -> list[SolverInfo]:
             warm_start=True,
             first_order=True,
             description="Non-convex Coulomb law (NSCD): Gauss-Seidel with an exact local solver.",
+            accepts=("relax", "symmetric", "check_every", "local"),
         ),
         SolverInfo(
             name="fp",
@@ -196,6 +201,7 @@ def _builtin() -> list[SolverInfo]:
                 "Non-convex Coulomb law as a sequence of convex problems: fp:<backend> "
                 "(bare fp: fp:clarabel-dual)."
             ),
+            accepts=("inner", "inner_tol", "max_outer", "inner_options"),
         ),
     ]
     for qp, module in QP_SOLVERS.items():

@@ -76,6 +76,40 @@ def test_third_party_backend_and_warm_start(clean_registry):
 
 
 @pytest.mark.unchecked_solutions
+def test_declared_options_are_checked_for_every_backend(clean_registry):
+    problem = _stack_problem()
+    solvers.register(
+        SolverInfo(name="copy", entry=f"{__name__}:_copy_solver", accepts=("alpha", "beta"))
+    )
+    assert solvers.solve(problem, "copy", alpha=1).status is Status.OPTIMAL
+    with pytest.raises(
+        ProblemError, match="copy has no option 'gamma'; its options are alpha, beta"
+    ):
+        solvers.solve(problem, "copy:gamma=2")
+    solvers.register(SolverInfo(name="bare", entry=f"{__name__}:_copy_solver", accepts=()))
+    with pytest.raises(ProblemError, match="bare has no option 'alpha'; its options are none"):
+        solvers.solve(problem, "bare", alpha=1)
+    # Undeclared (None): the options reach the backend, which checks them itself.
+    solvers.register(SolverInfo(name="open", entry=f"{__name__}:_copy_solver"))
+    assert solvers.solve(problem, "open", anything=1).status is Status.OPTIMAL
+    # Every built-in backend with its own option list names it.
+    for name in ("ipm", "pgs", "bgs", "apgd", "nscd", "fp"):
+        accepts = solvers.get(name).accepts
+        assert accepts, name
+        with pytest.raises(
+            ProblemError, match=f"has no option 'rho'; its options are {accepts[0]}"
+        ):
+            solvers.solve(problem, name, rho=1.0)
+
+
+def _stack_problem():
+    from cocd import assemble, detect_contacts
+
+    scene = stack(2, dim=2, mu=0.3)
+    return assemble(scene, detect_contacts(scene), 1e-3)
+
+
+@pytest.mark.unchecked_solutions
 def test_stepper_warm_starts_matched_by_pair(clean_registry):
     solvers.register(SolverInfo(name="copy", entry=f"{__name__}:_copy_solver", warm_start=True))
     # "copy" answers with the warm start (zero first): no residual or energy check.
