@@ -8,11 +8,11 @@ from functools import partial
 import numpy as np
 from numpy.typing import NDArray
 
+from cocd.checks import checked
 from cocd.errors import SceneError
 from cocd.packing import rain_deposition
 from cocd.resources import BYTES_PER_GRAIN, check_fits
 from cocd.scene import Scene, Wall
-from cocd.validation import checked
 
 __all__ = [
     "HARD_CASES",

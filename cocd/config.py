@@ -46,10 +46,10 @@ import tomllib
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from cocd import builders
+from cocd.checks import argument_checker
 from cocd.errors import CocdError
 from cocd.scene import DEFAULT_OVERLAP_TOL, Scene
 from cocd.stepper import DEFAULT_PENETRATION_TOL
-from cocd.validation import argument_checker
 
 if TYPE_CHECKING:
     from cocd.stepper import Stepper
