@@ -1,4 +1,4 @@
-"""Checks of user input shared by the measurements, the builders and the scene files.
+"""Checks of user input: scenes, contact detection, measurements, builders, scene files.
 
 Each raises :class:`~cocd.errors.SceneError` with a one-line message naming the
 input (validation against the papers is another thing: :mod:`cocd.bench.validate`).
@@ -29,11 +29,18 @@ __all__ = [
     "argument_checker",
     "bin_edges",
     "bool_mask",
+    "broadcast_array",
     "checked",
     "finite_array",
+    "finite_nonnegative",
+    "finite_positive",
     "finite_scalar",
     "float_array",
+    "friction_coefficient",
+    "nonnegative_number",
+    "positive_number",
     "require_finite",
+    "shaped_array",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -44,7 +51,7 @@ def float_array(value: object, name: str) -> FloatArray:
     """``value`` as a float array, or an error saying ``name`` must be numeric."""
     try:
         return np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise SceneError(f"{name} must be numeric: {exc}") from None
 
 
@@ -66,11 +73,74 @@ def finite_scalar(value: object, name: str) -> float:
     return float(a)
 
 
+def finite_positive(value: object, name: str) -> float:
+    """``value`` as one finite number > 0."""
+    x = finite_scalar(value, name)
+    if x <= 0.0:
+        raise SceneError(f"{name} must be > 0, got {x:g}")
+    return x
+
+
+def finite_nonnegative(value: object, name: str) -> float:
+    """``value`` as one finite number >= 0."""
+    x = finite_scalar(value, name)
+    if x < 0.0:
+        raise SceneError(f"{name} must be >= 0, got {x:g}")
+    return x
+
+
+def positive_number(value: object, name: str) -> float:
+    """``value`` as a float, finite and > 0."""
+    try:
+        x = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise SceneError(f"{name} must be a number, got {value!r}") from None
+    if not (np.isfinite(x) and x > 0.0):
+        raise SceneError(f"{name} must be finite and > 0, got {value}")
+    return x
+
+
+def nonnegative_number(value: float, name: str) -> None:
+    """Raise unless the number ``value`` is finite and >= 0."""
+    if not (np.isfinite(value) and value >= 0.0):
+        raise SceneError(f"{name} must be finite and >= 0, got {value}")
+
+
+def friction_coefficient(value: object, name: str) -> float:
+    """``value`` as a friction coefficient: a finite number >= 0."""
+    try:
+        mu = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise SceneError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(mu) or mu < 0.0:
+        raise SceneError(f"friction coefficient {name} must be finite and >= 0, got {mu}")
+    return mu
+
+
 def finite_array(value: object, name: str) -> FloatArray:
     """``value`` as a finite number or 1-D series."""
     a = float_array(value, name)
     if a.ndim > 1:
         raise SceneError(f"{name} must be a number or a 1-D series, got shape {a.shape}")
+    require_finite(a, name)
+    return a
+
+
+def broadcast_array(value: object, n: int, name: str) -> FloatArray:
+    """``value`` as a float array of shape ``(n,)``; one number is repeated."""
+    a = float_array(value, name)
+    if a.ndim == 0:
+        return np.full(n, float(a))
+    if a.shape != (n,):
+        raise SceneError(f"{name} must be a number or have shape ({n},), got {a.shape}")
+    return a
+
+
+def shaped_array(value: object, shape: tuple[int, ...], name: str) -> FloatArray:
+    """``value`` as a finite float array of the given shape."""
+    a = float_array(value, name)
+    if a.shape != shape:
+        raise SceneError(f"{name} must have shape {shape}, got {a.shape}")
     require_finite(a, name)
     return a
 

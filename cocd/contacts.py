@@ -19,6 +19,7 @@ from numba import njit
 from numpy.typing import NDArray
 from scipy.spatial import KDTree
 
+from cocd.checks import nonnegative_number
 from cocd.errors import SceneError
 from cocd.scene import Scene
 
@@ -142,8 +143,7 @@ def detect_contacts(
     n, d = x.shape
     if d_max is None:
         d_max = default_d_max(scene)
-    if not (np.isfinite(d_max) and d_max >= 0.0):
-        raise SceneError(f"d_max must be finite and >= 0, got {d_max}")
+    nonnegative_number(d_max, "d_max")
     if not (np.isfinite(skin) and skin >= 0.0 and np.isfinite(dt) and dt >= 0.0):
         raise SceneError(f"skin and dt must be finite and >= 0, got {skin} and {dt}")
     v = None

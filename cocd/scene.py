@@ -10,12 +10,19 @@ depth), as in 2D contact-dynamics codes.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cocd.checks import (
+    broadcast_array,
+    float_array,
+    friction_coefficient,
+    require_finite,
+    shaped_array,
+)
 from cocd.errors import OverlapError, SceneError
 
 __all__ = ["DEFAULT_OVERLAP_TOL", "Scene", "Wall"]
@@ -47,8 +54,8 @@ class Wall:
     mu: float | None = None
 
     def __init__(self, point: ArrayLike, normal: ArrayLike, mu: float | None = None) -> None:
-        p = _as_float_array(point, "wall point").reshape(-1)
-        n = _as_float_array(normal, "wall normal").reshape(-1)
+        p = float_array(point, "wall point").reshape(-1)
+        n = float_array(normal, "wall normal").reshape(-1)
         if p.shape != n.shape or p.size not in (2, 3):
             raise SceneError(
                 f"wall point {p.tolist()} and normal {n.tolist()} must both have 2 or 3 coordinates"
@@ -59,7 +66,7 @@ class Wall:
         if length == 0.0:
             raise SceneError("wall normal is the zero vector")
         if mu is not None:
-            mu = _friction(mu, "wall friction coefficient")
+            mu = friction_coefficient(mu, "wall friction coefficient")
         object.__setattr__(self, "point", p)
         object.__setattr__(self, "normal", n / length)
         object.__setattr__(self, "mu", None if mu is None else float(mu))
@@ -116,7 +123,7 @@ class Scene:
         mu: float = 0.3,
         mu_wall: float | None = None,
     ) -> None:
-        x = _as_float_array(positions, "positions")
+        x = float_array(positions, "positions")
         if x.ndim != 2 or x.shape[1] not in (2, 3):
             raise SceneError(
                 f"positions must have shape (n, 2) or (n, 3), got {np.shape(positions)}"
@@ -124,11 +131,11 @@ class Scene:
         n, d = x.shape
         if n == 0:
             raise SceneError("a scene needs at least one grain")
-        _require_finite(x, "positions")
+        require_finite(x, "positions")
         self.positions: FloatArray = x
 
-        r = _per_grain(radii, n, "radii")
-        _require_finite(r, "radii")
+        r = broadcast_array(radii, n, "radii")
+        require_finite(r, "radii")
         bad = np.flatnonzero(r <= 0.0)
         if bad.size:
             raise SceneError(
@@ -137,21 +144,23 @@ class Scene:
             )
         self.radii: FloatArray = r
 
-        rho = _per_grain(density, n, "density")
-        _require_finite(rho, "density")
+        rho = broadcast_array(density, n, "density")
+        require_finite(rho, "density")
         bad = np.flatnonzero(rho <= 0.0)
         if bad.size:
             raise SceneError(f"density of grain {bad[0]} is {rho[bad[0]]:g}: must be > 0")
         self.density: FloatArray = rho
 
         self.velocities: FloatArray = (
-            np.zeros((n, d)) if velocities is None else _shaped(velocities, (n, d), "velocities")
+            np.zeros((n, d))
+            if velocities is None
+            else shaped_array(velocities, (n, d), "velocities")
         )
         rot_shape: tuple[int, ...] = (n,) if d == 2 else (n, 3)
         self.angular_velocities: FloatArray = (
             np.zeros(rot_shape)
             if angular_velocities is None
-            else _shaped(angular_velocities, rot_shape, "angular_velocities")
+            else shaped_array(angular_velocities, rot_shape, "angular_velocities")
         )
 
         if fixed is None:
@@ -172,16 +181,16 @@ class Scene:
             if wall.dim != d:
                 raise SceneError(f"walls[{k}] is {wall.dim}D but the grains are {d}D")
 
-        g = np.zeros(d) if gravity is None else _as_float_array(gravity, "gravity").reshape(-1)
+        g = np.zeros(d) if gravity is None else float_array(gravity, "gravity").reshape(-1)
         if gravity is None:
             g[-1] = -9.81
         if g.shape != (d,):
             raise SceneError(f"gravity must have {d} components, got {g.size}")
-        _require_finite(g, "gravity")
+        require_finite(g, "gravity")
         self.gravity: FloatArray = g
 
-        self.mu = _friction(mu, "mu")
-        self.mu_wall = self.mu if mu_wall is None else _friction(mu_wall, "mu_wall")
+        self.mu = friction_coefficient(mu, "mu")
+        self.mu_wall = self.mu if mu_wall is None else friction_coefficient(mu_wall, "mu_wall")
         self.time = 0.0
         #: Named index ranges of grains set by builders (e.g. bed, layer, column).
         self.groups: dict[str, slice] = {"all": slice(0, n)}
@@ -278,46 +287,3 @@ class Scene:
             f"{int(self.fixed.sum())}, walls={len(self.walls)}, mu={self.mu:g}, "
             f"mu_wall={self.mu_wall:g}, t={self.time:g})"
         )
-
-
-# -- validation helpers -----------------------------------------------------
-def _as_float_array(value: ArrayLike, name: str) -> FloatArray:
-    try:
-        return np.array(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise SceneError(f"{name} must be numeric: {exc}") from None
-
-
-def _require_finite(a: FloatArray, name: str) -> None:
-    bad = ~np.isfinite(a)
-    if bad.any():
-        where = tuple(int(k) for k in np.argwhere(bad)[0])
-        subject = f"{name}[{', '.join(map(str, where))}]" if a.ndim else name
-        raise SceneError(f"{subject} is {a[where]}: {name} must be finite")
-
-
-def _per_grain(value: ArrayLike | float, n: int, name: str) -> FloatArray:
-    a = _as_float_array(value, name)
-    if a.ndim == 0:
-        return np.full(n, float(a))
-    if a.shape != (n,):
-        raise SceneError(f"{name} must be a number or have shape ({n},), got {a.shape}")
-    return a
-
-
-def _shaped(value: ArrayLike, shape: Sequence[int], name: str) -> FloatArray:
-    a = _as_float_array(value, name)
-    if a.shape != tuple(shape):
-        raise SceneError(f"{name} must have shape {tuple(shape)}, got {a.shape}")
-    _require_finite(a, name)
-    return a
-
-
-def _friction(value: float, name: str) -> float:
-    try:
-        mu = float(value)
-    except (TypeError, ValueError):
-        raise SceneError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(mu) or mu < 0.0:
-        raise SceneError(f"friction coefficient {name} must be finite and >= 0, got {mu}")
-    return mu
