@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cocd.checks import bool_mask, finite_scalar, float_array, require_finite
+from cocd.checks import (
+    bool_mask,
+    broadcast_array,
+    finite_array,
+    finite_nonnegative,
+    finite_positive,
+    float_array,
+    require_finite,
+)
 from cocd.errors import SceneError
 from cocd.scene import Scene
 
@@ -26,57 +35,64 @@ DEFAULT_GAP_FRACTION = 0.5
 STATIC_VELOCITY = 0.01
 
 
-def _grains(
+def grains(
     scene_or_positions: Scene | ArrayLike, radii: ArrayLike | float | None, mask: ArrayLike | None
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Positions ``(n, d)``, radii ``(n,)`` and the selected grains ``(n,)``."""
-    if isinstance(scene_or_positions, Scene):
-        if radii is not None:
-            raise SceneError("pass a Scene alone, or positions and radii: not a Scene and radii")
-        x, r = scene_or_positions.positions, scene_or_positions.radii
-        default = scene_or_positions.free.copy()
-    else:
-        x = _positions(scene_or_positions)
-        if radii is None:
-            raise SceneError("radii are required with a positions array")
-        r = float_array(radii, "radii")
-        if r.ndim == 0:
-            r = np.full(x.shape[0], float(r))
-        if r.shape != (x.shape[0],):
-            raise SceneError(f"radii must be a number or have shape ({x.shape[0]},), got {r.shape}")
-        require_finite(r, "radii")
-        if np.any(r <= 0.0):
-            k = int(np.argmax(r <= 0.0))
-            raise SceneError(f"radius of grain {k} is {r[k]:g}: radii must be > 0")
-        default = np.ones(x.shape[0], dtype=bool)
-    sel = default if mask is None else bool_mask(mask, x.shape[0], "mask")
-    if not sel.any():
-        raise SceneError("no grain selected (the mask is all False)")
-    return x, r, sel
+    not_both = "pass a Scene alone, or positions and radii: not a Scene and radii"
+    return _state(scene_or_positions, radii, mask, "radii", _radii, not_both)
 
 
-def _kinematics(
+def kinematics(
     scene_or_positions: Scene | ArrayLike, velocities: ArrayLike | None, mask: ArrayLike | None
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Positions ``(n, d)``, velocities ``(n, d)`` and the selected grains ``(n,)``."""
+    not_both = "pass a Scene alone, or positions and velocities: not both"
+    return _state(scene_or_positions, velocities, mask, "velocities", _velocities, not_both)
+
+
+def _state(
+    scene_or_positions: Scene | ArrayLike,
+    given: object,
+    mask: ArrayLike | None,
+    name: str,
+    convert: Callable[[object, FloatArray], FloatArray],
+    not_both: str,
+) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Positions, the per-grain array ``name`` (a Scene's, or ``given`` converted)
+    and the grains ``mask`` selects: by default every grain, or a Scene's free grains."""
     if isinstance(scene_or_positions, Scene):
-        if velocities is not None:
-            raise SceneError("pass a Scene alone, or positions and velocities: not both")
-        x, v = scene_or_positions.positions, scene_or_positions.velocities
+        if given is not None:
+            raise SceneError(not_both)
+        x, values = scene_or_positions.positions, getattr(scene_or_positions, name)
         default = scene_or_positions.free.copy()
     else:
         x = _positions(scene_or_positions)
-        if velocities is None:
-            raise SceneError("velocities are required with a positions array")
-        v = float_array(velocities, "velocities")
-        if v.shape != x.shape:
-            raise SceneError(f"velocities must have shape {x.shape} like positions, got {v.shape}")
-        require_finite(v, "velocities")
+        if given is None:
+            raise SceneError(f"{name} are required with a positions array")
+        values = convert(given, x)
         default = np.ones(x.shape[0], dtype=bool)
     sel = default if mask is None else bool_mask(mask, x.shape[0], "mask")
     if not sel.any():
         raise SceneError("no grain selected (the mask is all False)")
-    return x, v, sel
+    return x, values, sel
+
+
+def _radii(value: object, x: FloatArray) -> FloatArray:
+    r = broadcast_array(value, x.shape[0], "radii")
+    require_finite(r, "radii")
+    if np.any(r <= 0.0):
+        k = int(np.argmax(r <= 0.0))
+        raise SceneError(f"radius of grain {k} is {r[k]:g}: radii must be > 0")
+    return r
+
+
+def _velocities(value: object, x: FloatArray) -> FloatArray:
+    v = float_array(value, "velocities")
+    if v.shape != x.shape:
+        raise SceneError(f"velocities must have shape {x.shape} like positions, got {v.shape}")
+    require_finite(v, "velocities")
+    return v
 
 
 def _positions(value: ArrayLike) -> FloatArray:
@@ -87,7 +103,8 @@ def _positions(value: ArrayLike) -> FloatArray:
     return x
 
 
-def _main_mass(x: FloatArray, r: FloatArray, sel: BoolArray, gap: float) -> BoolArray:
+def largest_mass(x: FloatArray, r: FloatArray, sel: BoolArray, gap: float) -> BoolArray:
+    """The largest connected mass of the selected grains (see :func:`main_mass`)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import KDTree
@@ -107,7 +124,7 @@ def _main_mass(x: FloatArray, r: FloatArray, sel: BoolArray, gap: float) -> Bool
     return main
 
 
-def _bin_index(edges: FloatArray, values: FloatArray) -> tuple[IntArray, BoolArray]:
+def bin_index(edges: FloatArray, values: FloatArray) -> tuple[IntArray, BoolArray]:
     """Bin of each value, ``[e_k, e_k+1)`` with the last edge included, and whether inside."""
     k = np.searchsorted(edges, values, side="right") - 1
     k[values == edges[-1]] = edges.size - 2
@@ -115,12 +132,13 @@ def _bin_index(edges: FloatArray, values: FloatArray) -> tuple[IntArray, BoolArr
     return np.where(inside, k, 0), inside
 
 
-def _overlap(edges: FloatArray, lo: float, hi: float) -> FloatArray:
+def overlap(edges: FloatArray, lo: float, hi: float) -> FloatArray:
     """Length of each bin inside ``[lo, hi]``, shape ``(nbins,)``."""
     return np.asarray(np.clip(np.minimum(edges[1:], hi) - np.maximum(edges[:-1], lo), 0.0, None))
 
 
-def _covers(edges: FloatArray, centres: FloatArray, name: str) -> None:
+def check_covers(edges: FloatArray, centres: FloatArray, name: str) -> None:
+    """Raise unless the bins ``edges`` span every centre."""
     lo, hi = float(centres.min()), float(centres.max())
     if lo < edges[0] or hi > edges[-1]:
         raise SceneError(
@@ -129,16 +147,15 @@ def _covers(edges: FloatArray, centres: FloatArray, name: str) -> None:
         )
 
 
-def _gap(gap: float | None, r: FloatArray, sel: BoolArray) -> float:
+def connection_gap(gap: float | None, r: FloatArray, sel: BoolArray) -> float:
+    """``gap`` checked, or its default for the selected grains."""
     if gap is None:
         return DEFAULT_GAP_FRACTION * 2.0 * float(np.mean(r[sel]))
-    g = finite_scalar(gap, "gap")
-    if g < 0.0:
-        raise SceneError(f"gap must be >= 0, got {g:g}")
-    return g
+    return finite_nonnegative(gap, "gap")
 
 
-def _flow_axis(axis: int, d: int) -> None:
+def check_flow_axis(axis: int, d: int) -> None:
+    """Raise unless ``axis`` is a horizontal coordinate in ``d`` dimensions."""
     if not isinstance(axis, (int, np.integer)) or not 0 <= axis < d - 1:
         raise SceneError(
             f"axis must be a horizontal coordinate (0{', 1' if d == 3 else ''}) in {d}D, "
@@ -146,7 +163,19 @@ def _flow_axis(axis: int, d: int) -> None:
         )
 
 
-def _scalar_or_array(a: FloatArray) -> float | FloatArray:
+def relative_change(
+    value: object, reference: object, name: str, reference_name: str, *, nonnegative: bool = False
+) -> float | FloatArray:
+    """``(value - reference) / reference`` for a number or a series, ``reference > 0``."""
+    ref = finite_positive(reference, reference_name)
+    a = finite_array(value, name)
+    if nonnegative and np.any(a < 0.0):
+        raise SceneError(f"{name} must be >= 0, got {float(a.min()):g}")
+    return scalar_or_array((a - ref) / ref)
+
+
+def scalar_or_array(a: FloatArray) -> float | FloatArray:
+    """A float for a 0-d array, else the array."""
     return float(a) if a.ndim == 0 else a
 
 
@@ -198,7 +227,7 @@ class MassProfile:
         return out
 
 
-def _profile(
+def bin_profile(
     x: FloatArray,
     r: FloatArray,
     keep: BoolArray,
@@ -206,12 +235,13 @@ def _profile(
     ye: FloatArray | None,
     axis: int,
 ) -> MassProfile:
+    """The profile of the grains ``keep`` on the bins ``xe`` (and ``ye``)."""
     d = x.shape[1]
-    kx, inside = _bin_index(xe, x[:, axis])
+    kx, inside = bin_index(xe, x[:, axis])
     shape: tuple[int, ...] = (xe.size - 1,)
     flat = kx
     if ye is not None:
-        ky, inside_y = _bin_index(ye, x[:, 1 - axis])
+        ky, inside_y = bin_index(ye, x[:, 1 - axis])
         inside &= inside_y
         shape = (xe.size - 1, ye.size - 1)
         flat = kx * shape[1] + ky

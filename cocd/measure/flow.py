@@ -5,9 +5,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cocd.checks import bin_edges, finite_scalar
-from cocd.errors import SceneError
-from cocd.measure._common import STATIC_VELOCITY, FloatArray, _bin_index, _flow_axis, _kinematics
+from cocd.checks import bin_edges, finite_positive, finite_scalar
+from cocd.measure._common import (
+    STATIC_VELOCITY,
+    FloatArray,
+    bin_index,
+    check_flow_axis,
+    kinematics,
+)
 from cocd.scene import Scene
 
 __all__ = ["static_flowing_interface", "velocity_profile"]
@@ -51,15 +56,13 @@ def velocity_profile(
     (nz,) array
         ``u_x`` per bin (m/s); NaN for a bin with no grain.
     """
-    x, v, sel = _kinematics(scene_or_positions, velocities, mask)
-    _flow_axis(axis, x.shape[1])
+    x, v, sel = kinematics(scene_or_positions, velocities, mask)
+    check_flow_axis(axis, x.shape[1])
     ze = bin_edges(z_bins, "z_bins")
     xs = finite_scalar(station_x, "station_x")
-    hw = finite_scalar(half_width, "half_width")
-    if hw <= 0.0:
-        raise SceneError(f"half_width must be > 0, got {hw:g}")
+    hw = finite_positive(half_width, "half_width")
     window = sel & (np.abs(x[:, axis] - xs) < hw)
-    k, inside = _bin_index(ze, x[:, -1])
+    k, inside = bin_index(ze, x[:, -1])
     use = window & inside
     nz = ze.size - 1
     count = np.bincount(k[use], minlength=nz)
@@ -103,11 +106,7 @@ def static_flowing_interface(
 
     Parameters
     ----------
-    scene_or_positions : Scene or (n, d) array
-        A scene, or the grain centres (m).
-    velocities : (n, d) array, optional
-        Grain velocities (m/s); required with positions, not allowed with a Scene.
-    station_x, half_width, z_bins, axis, mask
+    scene_or_positions, velocities, station_x, half_width, z_bins, axis, mask
         As in :func:`velocity_profile`; ``z_bins[0]`` should be the base of the
         erodible bed.
     bed_top : float
@@ -121,9 +120,7 @@ def static_flowing_interface(
         ``h_sf`` (m), or NaN.
     """
     top = finite_scalar(bed_top, "bed_top")
-    c = finite_scalar(threshold, "threshold")
-    if c <= 0.0:
-        raise SceneError(f"threshold must be > 0, got {c:g}")
+    c = finite_positive(threshold, "threshold")
     u = velocity_profile(
         scene_or_positions,
         velocities,

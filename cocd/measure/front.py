@@ -8,17 +8,24 @@ from typing import overload
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cocd.checks import bin_edges, finite_array, finite_scalar, float_array
+from cocd.checks import (
+    bin_edges,
+    broadcast_array,
+    finite_array,
+    finite_nonnegative,
+    finite_scalar,
+)
 from cocd.errors import SceneError
 from cocd.measure._common import (
     BoolArray,
     FloatArray,
-    _flow_axis,
-    _gap,
-    _grains,
-    _main_mass,
-    _profile,
-    _scalar_or_array,
+    bin_profile,
+    check_flow_axis,
+    connection_gap,
+    grains,
+    largest_mass,
+    relative_change,
+    scalar_or_array,
 )
 from cocd.measure.profile import mass_profile
 from cocd.scene import Scene
@@ -65,8 +72,8 @@ def main_mass(
     (n,) bool array
         True for the grains of the main mass.
     """
-    x, r, sel = _grains(scene_or_positions, radii, mask)
-    return _main_mass(x, r, sel, _gap(gap, r, sel))
+    x, r, sel = grains(scene_or_positions, radii, mask)
+    return largest_mass(x, r, sel, connection_gap(gap, r, sel))
 
 
 def front_position(
@@ -84,14 +91,9 @@ def front_position(
 
     Parameters
     ----------
-    scene_or_positions : Scene or (n, d) array
-        A scene, or the grain centres (m).
-    radii : (n,) array or float, optional
-        Radii (m); required with positions, not allowed with a Scene.
+    scene_or_positions, radii, gap : see :func:`main_mass`
     axis : int
         Flow direction, a horizontal coordinate (0, or 1 in 3D).
-    gap : float, optional
-        Connection threshold (m), see :func:`main_mass`.
     mask : (n,) bool array, optional
         Grains to consider. Default: every grain, or a Scene's free grains. On an
         erodible bed, whose grains span the channel, pass the grains of the
@@ -104,9 +106,9 @@ def front_position(
         ``r_f`` in m, in the scene's frame (subtract the back wall's position to
         get a length from it).
     """
-    x, r, sel = _grains(scene_or_positions, radii, mask)
-    _flow_axis(axis, x.shape[1])
-    main = _main_mass(x, r, sel, _gap(gap, r, sel))
+    x, r, sel = grains(scene_or_positions, radii, mask)
+    check_flow_axis(axis, x.shape[1])
+    main = largest_mass(x, r, sel, connection_gap(gap, r, sel))
     return float(np.max(x[main, axis] + r[main]))
 
 
@@ -181,23 +183,17 @@ def surface_front(
     float
         The front (m), in the scene's frame; NaN when no bin carries the flow.
     """
-    x, r, sel = _grains(scene_or_positions, radii, mask)
-    _flow_axis(axis, x.shape[1])
+    x, r, sel = grains(scene_or_positions, radii, mask)
+    check_flow_axis(axis, x.shape[1])
     edges = bin_edges(x_bins, "x_bins")
     nx = edges.size - 1
-    base = float_array(surface, "surface")
-    if base.ndim == 0:
-        base = np.full(nx, float(base))
-    if base.shape != (nx,):
-        raise SceneError(f"surface must be a number or have shape ({nx},), got {base.shape}")
+    base = broadcast_array(surface, nx, "surface")
     if threshold is None:
         threshold = float(np.mean(r[sel]))
-    threshold = finite_scalar(threshold, "threshold")
-    if threshold < 0.0:
-        raise SceneError(f"threshold must be >= 0, got {threshold:g}")
+    threshold = finite_nonnegative(threshold, "threshold")
     if int(max_gap_bins) != max_gap_bins or max_gap_bins < 0:
         raise SceneError(f"max_gap_bins must be an integer >= 0, got {max_gap_bins!r}")
-    height = _profile(x, r, sel, edges, None, axis).height
+    height = bin_profile(x, r, sel, edges, None, axis).height
     excess = np.where(np.isfinite(height) & np.isfinite(base), height - base, -np.inf)
     flowing = excess > threshold
     if not flowing.any():
@@ -241,7 +237,7 @@ def runout(
     """
     r0 = finite_scalar(initial_front, "initial_front")
     rf = finite_array(final_front, "final_front")
-    return _scalar_or_array(rf - r0)
+    return scalar_or_array(rf - r0)
 
 
 @overload
@@ -253,22 +249,9 @@ def relative_runout(L0: float, Lf: Sequence[float] | FloatArray) -> FloatArray: 
 
 
 def relative_runout(L0: float, Lf: float | Sequence[float] | FloatArray) -> float | FloatArray:
-    """Relative runout ``(L_f - L_0) / L_0`` (dimensionless).
+    """Relative runout ``(L_f - L_0) / L_0`` (dimensionless), shaped like ``Lf``.
 
-    Parameters
-    ----------
-    L0 : float
-        Initial length of the mass, from the back wall to the front (m), > 0.
-    Lf : float or (nt,) array
-        Final length (or a series ``L(t)``), measured from the same back wall (m).
-
-    Returns
-    -------
-    float or (nt,) array
-        Same shape as ``Lf``.
+    ``L0`` is the initial length of the mass, from the back wall to the front
+    (m, > 0); ``Lf`` the final length, or a series ``L(t)``, from the same wall.
     """
-    length0 = finite_scalar(L0, "L0")
-    if length0 <= 0.0:
-        raise SceneError(f"L0 must be > 0, got {length0:g}")
-    lengths = finite_array(Lf, "Lf")
-    return _scalar_or_array((lengths - length0) / length0)
+    return relative_change(Lf, L0, "Lf", "L0")

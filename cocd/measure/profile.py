@@ -8,19 +8,19 @@ from typing import overload
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cocd.checks import bin_edges, finite_array, finite_scalar
+from cocd.checks import bin_edges, finite_positive, finite_scalar
 from cocd.errors import SceneError
 from cocd.measure._common import (
     FloatArray,
     MassProfile,
-    _covers,
-    _flow_axis,
-    _gap,
-    _grains,
-    _main_mass,
-    _overlap,
-    _profile,
-    _scalar_or_array,
+    bin_profile,
+    check_covers,
+    check_flow_axis,
+    connection_gap,
+    grains,
+    largest_mass,
+    overlap,
+    relative_change,
 )
 from cocd.scene import Scene
 
@@ -49,10 +49,7 @@ def mass_profile(
 
     Parameters
     ----------
-    scene_or_positions : Scene or (n, d) array
-        A scene, or the grain centres (m).
-    radii : (n,) array or float, optional
-        Radii (m); required with positions, not allowed with a Scene.
+    scene_or_positions, radii, gap, mask : see :func:`main_mass`
     x_bins : (nx + 1,) array
         Bin edges along the flow direction (m), strictly increasing.
     y_bins : (ny + 1,) array, optional
@@ -62,10 +59,6 @@ def mass_profile(
     connected : bool
         Keep only the main connected mass (default); False keeps every
         selected grain.
-    gap : float, optional
-        Connection threshold (m), see :func:`main_mass`.
-    mask : (n,) bool array, optional
-        Grains to consider. Default: every grain, or a Scene's free grains.
 
     Returns
     -------
@@ -73,17 +66,17 @@ def mass_profile(
         Heights (m, absolute z: subtract the bed's z for a thickness), solid
         volume and grain count per bin.
     """
-    x, r, sel = _grains(scene_or_positions, radii, mask)
+    x, r, sel = grains(scene_or_positions, radii, mask)
     d = x.shape[1]
-    _flow_axis(axis, d)
+    check_flow_axis(axis, d)
     xe = bin_edges(x_bins, "x_bins")
     ye = None
     if y_bins is not None:
         if d != 3:
             raise SceneError("y_bins apply to 3D scenes only (the grains are 2D)")
         ye = bin_edges(y_bins, "y_bins")
-    keep = _main_mass(x, r, sel, _gap(gap, r, sel)) if connected else sel
-    return _profile(x, r, keep, xe, ye, axis)
+    keep = largest_mass(x, r, sel, connection_gap(gap, r, sel)) if connected else sel
+    return bin_profile(x, r, keep, xe, ye, axis)
 
 
 def granular_volume(
@@ -114,10 +107,7 @@ def granular_volume(
 
     Parameters
     ----------
-    scene_or_positions : Scene or (n, d) array
-        A scene, or the grain centres (m).
-    radii : (n,) array or float, optional
-        Radii (m); required with positions, not allowed with a Scene.
+    scene_or_positions, radii, axis, gap, mask : see :func:`mass_profile`
     x_bins : (nx + 1,) array, optional
         Bin edges along the flow direction (m); they must cover the centres of
         the main mass. Default: bins ``2 r_max + gap`` wide (or a little
@@ -130,24 +120,18 @@ def granular_volume(
     base : float
         z of the surface the mass rests on (m): the floor, or the top of a glued
         layer.
-    axis : int
-        Flow direction, a horizontal coordinate (0, or 1 in 3D).
-    gap : float, optional
-        Connection threshold (m), see :func:`main_mass`.
-    mask : (n,) bool array, optional
-        Grains to consider. Default: every grain, or a Scene's free grains.
 
     Returns
     -------
     float
         ``V`` in m^3 (m^2, i.e. m^3 per metre of depth, in 2D).
     """
-    x, r, sel = _grains(scene_or_positions, radii, mask)
+    x, r, sel = grains(scene_or_positions, radii, mask)
     d = x.shape[1]
-    _flow_axis(axis, d)
+    check_flow_axis(axis, d)
     z0 = finite_scalar(base, "base")
-    g = _gap(gap, r, sel)
-    main = _main_mass(x, r, sel, g)
+    g = connection_gap(gap, r, sel)
+    main = largest_mass(x, r, sel, g)
     cross = 1 - axis if d == 3 else -1  # the horizontal axis that is not the flow's
     back = float(np.min(x[main, axis] - r[main]))
     front = float(np.max(x[main, axis] + r[main]))
@@ -159,7 +143,7 @@ def granular_volume(
         xe = np.linspace(back, front, nbins + 1)
     else:
         xe = bin_edges(x_bins, "x_bins")
-        _covers(xe, x[main, axis], "x_bins")
+        check_covers(xe, x[main, axis], "x_bins")
     ye = None
     if y_bins is not None:
         if d != 3:
@@ -167,12 +151,12 @@ def granular_volume(
         if width is not None:
             raise SceneError("give either y_bins or width, not both")
         ye = bin_edges(y_bins, "y_bins")
-        _covers(ye, x[main, cross], "y_bins")
+        check_covers(ye, x[main, cross], "y_bins")
     elif width is not None and d == 2:
         raise SceneError("width applies to 3D scenes only (a 2D volume is per metre of depth)")
 
-    profile = _profile(x, r, main, xe, ye, axis)
-    lx = _overlap(xe, back, front)
+    profile = bin_profile(x, r, main, xe, ye, axis)
+    lx = overlap(xe, back, front)
     height = profile.height
     if ye is None:
         # The free surface bridges an empty bin inside the mass (bins narrower
@@ -184,7 +168,7 @@ def granular_volume(
         height[bridge] = np.interp(centres[bridge], centres[filled], height[filled])
     thickness = np.clip(np.nan_to_num(height - z0, nan=0.0), 0.0, None)
     if ye is not None:
-        ly = _overlap(
+        ly = overlap(
             ye, float(np.min(x[main, cross] - r[main])), float(np.max(x[main, cross] + r[main]))
         )
         return float(np.sum(thickness * lx[:, None] * ly[None, :]))
@@ -194,9 +178,7 @@ def granular_volume(
     if width is None:
         w = float(np.max(x[main, cross] + r[main]) - np.min(x[main, cross] - r[main]))
     else:
-        w = finite_scalar(width, "width")
-        if w <= 0.0:
-            raise SceneError(f"width must be > 0, got {w:g}")
+        w = finite_positive(width, "width")
     return area * w
 
 
@@ -211,27 +193,10 @@ def relative_volume_variation(V: Sequence[float] | FloatArray, V0: float) -> Flo
 def relative_volume_variation(
     V: float | Sequence[float] | FloatArray, V0: float
 ) -> float | FloatArray:
-    """Relative volume variation ``a_V = (V - V0) / V0`` (dimensionless).
+    """Relative volume variation ``a_V = (V - V0) / V0`` (dimensionless), shaped like ``V``.
 
-    Positive when the mass dilates, negative when it compacts.
-
-    Parameters
-    ----------
-    V : float or (nt,) array
-        Volume occupied by the mass (see :func:`granular_volume`), or a series
-        ``V(t)``, >= 0.
-    V0 : float
-        Initial volume, > 0, same units as ``V``.
-
-    Returns
-    -------
-    float or (nt,) array
-        Same shape as ``V``.
+    Positive when the mass dilates, negative when it compacts. ``V`` is the
+    volume occupied by the mass (:func:`granular_volume`) or a series ``V(t)``,
+    >= 0; ``V0`` the initial volume, > 0, in the same units.
     """
-    v0 = finite_scalar(V0, "V0")
-    if v0 <= 0.0:
-        raise SceneError(f"V0 must be > 0, got {v0:g}")
-    v = finite_array(V, "V")
-    if np.any(v < 0.0):
-        raise SceneError(f"V must be >= 0, got {float(v.min()):g}")
-    return _scalar_or_array((v - v0) / v0)
+    return relative_change(V, V0, "V", "V0", nonnegative=True)
