@@ -36,6 +36,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from solvers._contact_kernels import contact_rest, move_contact
+
 __all__ = ["bgs_sweep", "greedy_colours", "local_ccp", "support_depth"]
 
 _NEWTON_ITER = 30
@@ -234,28 +236,9 @@ def local_ccp(W, Winv, r, mu, previous, out):
 def _visit(a, indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v, shift, r, out):
     """Solve contact ``a`` with the others fixed; update ``p[a]`` and ``v``; return the
     largest change of an impulse component."""
-    m = p.shape[1]
-    for k in range(m):
-        row = a * m + k
-        s = offset[row]
-        for idx in range(indptr[row], indptr[row + 1]):
-            s += data[idx] * v[indices[idx]]
-        for ll in range(m):
-            s -= W[a, k, ll] * p[a, ll]
-        r[k] = s - shift * p[a, k]
+    contact_rest(a, indptr, indices, data, v, offset, W, p, shift, r)
     local_ccp(W[a], Winv[a], r, mu[a], p[a], out)
-    biggest = 0.0
-    for k in range(m):
-        d = out[k] - p[a, k]
-        if d != 0.0:
-            row = a * m + k
-            for idx in range(indptr[row], indptr[row + 1]):
-                j = indices[idx]
-                v[j] += data[idx] * d * inv_mass[j]
-            p[a, k] = out[k]
-            if abs(d) > biggest:
-                biggest = abs(d)
-    return biggest
+    return move_contact(a, out, indptr, indices, data, inv_mass, p, v)
 
 
 @njit(cache=True, parallel=True)

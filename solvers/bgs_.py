@@ -74,7 +74,7 @@ from numpy.typing import NDArray
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
 from solvers._bgs_kernels import bgs_sweep, greedy_colours, support_depth
-from solvers._kernels import natural_map_sq
+from solvers._contact_kernels import natural_map_sq
 from solvers.base import Solution, Status
 from solvers.nscd_ import contact_blocks
 from solvers.pgs_ import ignore_polish, impulse_rms, positive_int, ratio, start_impulses

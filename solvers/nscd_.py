@@ -9,7 +9,7 @@ unconvexified law (DESIGN.md section 1): ``w = W p + b``, De Saxcé's
 Method (Jean and Moreau's non-smooth contact dynamics): sweep over the contacts; at
 contact ``a`` freeze the others, ``r_a = (W p + b)_a - W_aa p_a``, and replace ``p_a``
 by the exact solution of the one-contact law with block ``W_aa``
-(:func:`solvers._nscd_kernels.local_solve`: separation, stick and sliding branches
+(:func:`solvers._nscd_local_kernels.local_solve`: separation, stick and sliding branches
 in closed form in 2D; in 3D the sliding branch solves for the slip angle by Newton,
 falling back on the roots of a quartic that gives every candidate angle at once).
 The velocity ``v = U + M^-1 H'p`` is kept up to date after every contact,
@@ -49,7 +49,7 @@ cocd                      NSCD
 ``local="fb"`` is the hybrid local solver of Gauss-Seidel codes: Newton on the
 modified Fischer-Burmeister function of the contact, started from its current
 impulse, with the exact solver when Newton does not reach the local law to 1e-12
-(:func:`solvers._nscd_kernels.local_solve_fb`). Where the law has several local
+(:func:`solvers._nscd_local_kernels.local_solve_fb`). Where the law has several local
 solutions (large ``mu``), the two may pick different ones.
 
 ``iterations`` counts sweeps. ``extras``: ``history`` (``(sweep,
@@ -70,7 +70,8 @@ import numpy as np
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import coulomb_residual
-from solvers._nscd_kernels import LOCAL_EXACT, LOCAL_FB, delassus_blocks, nscd_sweeps
+from solvers._contact_kernels import delassus_blocks
+from solvers._nscd_kernels import LOCAL_EXACT, LOCAL_FB, nscd_sweeps
 from solvers.base import Solution, Status
 
 if TYPE_CHECKING:

@@ -10,7 +10,7 @@ DESIGN.md section 2) and an over-relaxation factor ``omega`` in (0, 2).
 ``W`` is never formed: the generalized velocity ``v = U + M^-1 H'p`` is kept
 up to date after every contact's change (a contact touches at most two grains,
 so the update costs the nonzeros of its rows), and ``w_a = H_a v + offset_a``.
-The sweeps run in a numba kernel (:func:`solvers._kernels.pgs_sweeps`).
+The sweeps run in a numba kernel (:func:`solvers._pgs_kernels.pgs_sweeps`).
 
 ========================  =====================================================
 cocd                      PGS
@@ -76,7 +76,8 @@ from numpy.typing import NDArray
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
-from solvers._kernels import natural_map_sq, pgs_sweeps
+from solvers._contact_kernels import natural_map_sq
+from solvers._pgs_kernels import pgs_sweeps
 from solvers.base import Solution, Status
 
 if TYPE_CHECKING:

@@ -33,7 +33,7 @@ from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
 from cocd.stepper import match_impulses
 from solvers._apgd_kernels import step_and_length
-from solvers._kernels import project_cones
+from solvers._contact_kernels import project_cones
 
 ITERATIVE = ["pgs", "bgs", "apgd"]
 TOL = 1e-8

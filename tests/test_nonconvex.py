@@ -2,7 +2,7 @@
 analytic answers, and against the convexified law (COCD) where the two laws differ.
 
 ``nscd`` is non-linear Gauss-Seidel with an exact one-contact solver
-(:mod:`solvers._nscd_kernels`); ``fp:<backend>`` is Cadoux's fixed point on convex
+(:mod:`solvers._nscd_local_kernels`); ``fp:<backend>`` is Cadoux's fixed point on convex
 problems whose gaps are shifted by ``dt mu |w_T|``. Both are judged by
 ``coulomb_residual`` (the suite-wide check in conftest.py asserts it is at most
 ``10 tol`` for every ``optimal`` answer).
@@ -40,7 +40,7 @@ from cocd import (
     stack,
 )
 from cocd.residuals import coulomb_residual
-from solvers import _nscd_kernels as kernels
+from solvers import _nscd_local_kernels as kernels
 
 DT = 1e-3
 G = 9.81

@@ -1,0 +1,157 @@
+"""Numba kernels on single contacts, shared by the contact solvers (:mod:`solvers.pgs_`,
+:mod:`solvers.bgs_`, :mod:`solvers.nscd_`).
+
+The exact projection on one Coulomb cone, the natural map summed over contacts,
+the diagonal Delassus blocks, and the two halves of every Gauss-Seidel visit: a
+contact's relative velocity read from ``v``, and the update of ``v`` when its
+impulse changes. Arrays are ``float64``; impulses are ``(nc, m)`` with the
+normal first, ``m`` in {1, 2, 3}; ``H`` is given by its CSR arrays ``(indptr,
+indices, data)`` with the ``m`` rows of contact ``a`` at ``a m .. a m + m - 1``.
+
+Compiled on first use and cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "contact_rest",
+    "delassus_blocks",
+    "move_contact",
+    "natural_map_sq",
+    "project_cones",
+    "project_contact",
+    "row_velocity",
+]
+
+
+@njit(cache=True)
+def project_contact(x, mu):
+    """Project ``x`` (one contact, length ``m``, normal first) on ``{|x_T| <= mu x_N}`` in place.
+
+    ``m = 1`` is the half-line ``x_N >= 0``. Same closed form as
+    :func:`cocd.cones.project_coulomb`; with ``mu = 0`` a point ``(x_N < 0, 0)``
+    is outside the cone (``|0| <= 0 * x_N`` holds, ``x_N >= 0`` does not) and
+    goes to 0.
+    """
+    m = x.shape[0]
+    xn = x[0]
+    if m == 1:
+        if xn < 0.0:
+            x[0] = 0.0
+        return
+    nt2 = 0.0
+    for k in range(1, m):
+        nt2 += x[k] * x[k]
+    nt = np.sqrt(nt2)
+    if nt <= mu * xn and xn >= 0.0:
+        return
+    if mu * nt <= -xn:
+        for k in range(m):
+            x[k] = 0.0
+        return
+    # Here nt > 0 (nt = 0 is either inside or polar).
+    s = (xn + mu * nt) / (1.0 + mu * mu)
+    x[0] = s
+    f = mu * s / nt
+    for k in range(1, m):
+        x[k] *= f
+
+
+@njit(cache=True)
+def project_cones(x, mu, out):
+    """``out = P_K(x)`` contact by contact; ``x, out`` of shape ``(nc, m)`` (may alias)."""
+    nc, m = x.shape
+    for a in range(nc):
+        for k in range(m):
+            out[a, k] = x[a, k]
+        project_contact(out[a], mu[a])
+
+
+@njit(cache=True, inline="always")
+def row_velocity(row, indptr, indices, data, v, offset):
+    """``offset[row] + H[row] v``: one row of the relative velocity ``w = H v + offset``."""
+    w = offset[row]
+    for idx in range(indptr[row], indptr[row + 1]):
+        w += data[idx] * v[indices[idx]]
+    return w
+
+
+@njit(cache=True, inline="always")
+def contact_rest(a, indptr, indices, data, v, offset, W, p, shift, r):
+    """``r = (W p + b)_a - W_aa p_a``: what the other contacts and the free motion give
+    contact ``a`` (``shift`` the problem's ``delassus_shift``, ``W`` its blocks)."""
+    m = p.shape[1]
+    for k in range(m):
+        s = row_velocity(a * m + k, indptr, indices, data, v, offset)
+        for ll in range(m):
+            s -= W[a, k, ll] * p[a, ll]
+        r[k] = s - shift * p[a, k]
+
+
+@njit(cache=True, inline="always")
+def move_contact(a, new, indptr, indices, data, inv_mass, p, v):
+    """``p_a <- new`` and ``v += M^-1 H_a' (change of p_a)``, so that ``v = U + M^-1 H'p``
+    still holds; returns the largest change of an impulse component."""
+    m = p.shape[1]
+    biggest = 0.0
+    for k in range(m):
+        d = new[k] - p[a, k]
+        if d != 0.0:
+            row = a * m + k
+            for idx in range(indptr[row], indptr[row + 1]):
+                j = indices[idx]
+                v[j] += data[idx] * d * inv_mass[j]
+            p[a, k] = new[k]
+            if abs(d) > biggest:
+                biggest = abs(d)
+    return biggest
+
+
+@njit(cache=True)
+def natural_map_sq(indptr, indices, data, v, offset, rho, mu, p, shift):
+    """``sum_a |p_a - P_K(p_a - rho_a w_a)|^2`` with ``w = H v + offset - shift p``
+    (``v = U + M^-1 H'p``; ``shift`` is the problem's ``delassus_shift``).
+
+    The numerator of :func:`cocd.residuals.ccp_residual`, squared, in one pass.
+    """
+    nc, m = p.shape
+    x = np.empty(m)
+    total = 0.0
+    for a in range(nc):
+        for k in range(m):
+            w = row_velocity(a * m + k, indptr, indices, data, v, offset)
+            x[k] = p[a, k] - rho[a] * (w - shift * p[a, k])
+        project_contact(x, mu[a])
+        for k in range(m):
+            d = p[a, k] - x[k]
+            total += d * d
+    return total
+
+
+@njit(cache=True)
+def delassus_blocks(indptr, indices, data, inv_mass, nc, m):
+    """Diagonal blocks ``W_aa = H_a M^-1 H_a'`` of the Delassus operator, shape ``(nc, m, m)``.
+
+    Computed from the rows of ``H`` with a dense scratch row (no ``W`` is formed).
+    """
+    ndof = inv_mass.shape[0]
+    scratch = np.zeros(ndof)
+    blocks = np.zeros((nc, m, m))
+    for a in range(nc):
+        for k in range(m):
+            row = a * m + k
+            for idx in range(indptr[row], indptr[row + 1]):
+                scratch[indices[idx]] += data[idx] * inv_mass[indices[idx]]
+            for ll in range(k, m):
+                other = a * m + ll
+                s = 0.0
+                for idx in range(indptr[other], indptr[other + 1]):
+                    s += data[idx] * scratch[indices[idx]]
+                blocks[a, k, ll] = s
+                blocks[a, ll, k] = s
+            for idx in range(indptr[row], indptr[row + 1]):
+                scratch[indices[idx]] = 0.0
+    return blocks

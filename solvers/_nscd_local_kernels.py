@@ -1,0 +1,499 @@
+"""Numba kernels of the NSCD solver (:mod:`solvers.nscd_`): the local solvers of the
+Signorini-Coulomb law for one contact (the sweep is :mod:`solvers._nscd_kernels`).
+
+One contact ``a`` with its Delassus block ``W`` (``m x m``, symmetric positive definite)
+and the rest ``r = (W p + b)_a - W p_a`` (what the other contacts and the free motion
+give): find ``p`` with ``w = W p + r`` and De Saxcé's ``ŵ = w + (mu |w_T|, 0)`` such
+that ``K ∋ p ⊥ ŵ ∈ K*``, ``K = {|p_T| <= mu p_N}``. Its solutions are of three kinds:
+
+- separation: ``p = 0``, valid iff ``r_N >= 0``;
+- stick: ``w = 0``, ``p = -W^-1 r``, valid iff ``p`` is in ``K``;
+- slide: ``p = p_N (1, -mu e)`` with ``|e| = 1``, ``p_N > 0``, ``w_N = 0`` and
+  ``w_T = alpha e`` with ``alpha >= 0`` (the friction opposes the slip).
+
+In 2D ``e = +-1``: both sliding branches are closed forms. In 3D ``w_N = 0`` gives
+``p_N(e) = -r_N / (W_NN - mu W_NT e)`` and the slip direction ``e = (cos t, sin t)``
+is a root of ``f(t) = e x w_T(e)`` with ``e . w_T(e) > 0`` and ``p_N > 0``:
+
+1. Newton on the angle from the direction opposite to the stick trial's tangential
+   impulse (already the root when ``W_TT`` is isotropic and ``W_NT = 0``, the case of
+   two spheres or a sphere and a wall: no iteration);
+2. if Newton does not end on a valid root: ``(W_NN - mu W_NT e) f`` is a
+   trigonometric polynomial of degree 2 in the angle, so its zeros are the roots on
+   the unit circle of a quartic in ``z = exp(i t)``; every one is polished by Newton
+   and checked, and the valid one nearest the guess is taken (all solutions are seen:
+   this makes the 3D sliding branch an exact enumeration, like 2D);
+3. last resort (never needed in our random tests): a scan of the circle for sign
+   changes of ``f``, refined by bisection.
+
+The branches are tried in the order separation, stick, slide; the first valid one is
+taken (the law may have several solutions for large ``mu``). Should none be valid to
+rounding, the candidate with the smallest local natural map is taken.
+
+Arrays are ``float64``; impulses are ``(nc, m)`` with the normal first, ``m`` in
+{1, 2, 3}; ``H`` is given by its CSR arrays ``(indptr, indices, data)`` with the
+``m`` rows of contact ``a`` at ``a m .. a m + m - 1``. Compiled on first use and
+cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from solvers._contact_kernels import project_contact
+
+__all__ = ["SEPARATED", "SLIDE", "STICK", "local_solve", "local_solve_fb"]
+
+#: Branch codes returned by :func:`local_solve`.
+SEPARATED = 0
+STICK = 1
+SLIDE = 2
+
+_NEWTON_ITER = 30
+_FB_ITER = 20
+_FB_ACCEPT = 1e-12
+_SCAN = 360
+_BISECT = 200
+_EPS = 2.220446049250313e-16
+
+
+@njit(cache=True)
+def local_solve(W, Winv, r, mu, out):
+    """Exact solution ``out`` (length ``m``) of the Signorini-Coulomb law of one contact.
+
+    ``W`` and ``Winv``: the ``m x m`` block and its inverse; ``r``: the rest, so that
+    ``w = W out + r``. Returns the branch taken (SEPARATED, STICK, SLIDE).
+    """
+    m = r.shape[0]
+    for k in range(m):
+        out[k] = 0.0
+    rn = r[0]
+    if rn >= 0.0 or W[0, 0] <= 0.0:
+        return SEPARATED
+    if m == 1 or mu == 0.0:
+        # Frictionless: p_T = 0 and w_N = 0.
+        out[0] = -rn / W[0, 0]
+        return SLIDE if m > 1 else STICK
+    if m == 2:
+        return _local_2d(W, Winv, r, mu, out)
+    return _local_3d(W, Winv, r, mu, out)
+
+
+@njit(cache=True)
+def _local_2d(W, Winv, r, mu, out):
+    a, c, d = W[0, 0], W[0, 1], W[1, 1]
+    rn, rt = r[0], r[1]
+    pn = -(Winv[0, 0] * rn + Winv[0, 1] * rt)
+    pt = -(Winv[1, 0] * rn + Winv[1, 1] * rt)
+    if pn >= 0.0 and abs(pt) <= mu * pn:
+        out[0] = pn
+        out[1] = pt
+        return STICK
+    # Slip s = sign(w_T), p_T = -s mu p_N. The stick trial's p_T points against the
+    # slip: try that branch first (both may hold for large mu with coupling).
+    first = -1.0 if pt > 0.0 else 1.0
+    for attempt in range(2):
+        s = first if attempt == 0 else -first
+        den = a - s * mu * c
+        if den <= 0.0:
+            continue
+        qn = -rn / den
+        qt = -s * mu * qn
+        wt = c * qn + d * qt + rt
+        if s * wt >= 0.0:
+            out[0] = qn
+            out[1] = qt
+            return SLIDE
+    # Rounding at a branch boundary: the candidate with the smallest local residual.
+    _best_candidate(W, r, mu, pn, pt, 0.0, out)
+    if out[0] <= 0.0:
+        return SEPARATED
+    return STICK if abs(out[1]) < mu * out[0] else SLIDE
+
+
+@njit(cache=True)
+def _local_3d(W, Winv, r, mu, out):
+    rn = r[0]
+    pn = -(Winv[0, 0] * r[0] + Winv[0, 1] * r[1] + Winv[0, 2] * r[2])
+    p1 = -(Winv[1, 0] * r[0] + Winv[1, 1] * r[1] + Winv[1, 2] * r[2])
+    p2 = -(Winv[2, 0] * r[0] + Winv[2, 1] * r[1] + Winv[2, 2] * r[2])
+    nt = np.sqrt(p1 * p1 + p2 * p2)
+    if pn >= 0.0 and nt <= mu * pn:
+        out[0] = pn
+        out[1] = p1
+        out[2] = p2
+        return STICK
+    # Slip direction guess: against the stick trial's tangential impulse.
+    if nt > 0.0:
+        theta0 = np.arctan2(-p2, -p1)
+    else:
+        theta0 = np.arctan2(r[2], r[1])
+    ok, theta = _newton_angle(W, r, mu, theta0, True)
+    if not ok:
+        ok, theta = _polynomial_angle(W, r, mu, theta0)
+    if not ok:
+        ok, theta = _scan_angle(W, r, mu, theta0)
+    if ok:
+        ct, st = np.cos(theta), np.sin(theta)
+        den = W[0, 0] - mu * (W[0, 1] * ct + W[0, 2] * st)
+        qn = -rn / den
+        out[0] = qn
+        out[1] = -mu * qn * ct
+        out[2] = -mu * qn * st
+        return SLIDE
+    _best_candidate(W, r, mu, pn, p1, p2, out)
+    if out[0] <= 0.0:
+        return SEPARATED
+    return STICK if np.sqrt(out[1] ** 2 + out[2] ** 2) < mu * out[0] else SLIDE
+
+
+@njit(cache=True)
+def _polynomial_angle(W, r, mu, theta0):
+    """Every slip angle at once: ``den(theta) f(theta)`` is a trigonometric polynomial of
+    degree 2, i.e. ``z^-2 P(z)`` with ``z = exp(i theta)`` and ``P`` a quartic whose roots
+    on the unit circle are the candidate angles. Each is polished by Newton on ``f``
+    and checked; of the valid ones, the nearest ``theta0``."""
+    rn, r1, r2 = r[0], r[1], r[2]
+    # den f = A c^2 + B c s + C s^2 + D c + E s  (c = cos, s = sin)
+    A = mu * (rn * W[1, 2] - W[0, 1] * r2)
+    B = mu * (rn * (W[2, 2] - W[1, 1]) - (W[0, 2] * r2 - W[0, 1] * r1))
+    C = mu * (W[0, 2] * r1 - rn * W[1, 2])
+    D = W[0, 0] * r2 - rn * W[2, 0]
+    E = rn * W[1, 0] - W[0, 0] * r1
+    coef = np.empty(5, dtype=np.complex128)
+    coef[0] = complex(0.25 * (A - C), -0.25 * B)
+    coef[1] = complex(0.5 * D, -0.5 * E)
+    coef[2] = complex(0.5 * (A + C), 0.0)
+    coef[3] = complex(0.5 * D, 0.5 * E)
+    coef[4] = complex(0.25 * (A - C), 0.25 * B)
+    size = 0.0
+    for k in range(5):
+        size = max(size, abs(coef[k]))
+    if size == 0.0:
+        return False, theta0
+    for k in range(5):
+        if abs(coef[k]) <= 1e-14 * size:
+            coef[k] = 0.0
+    first = 0
+    while first < 5 and coef[first] == 0.0:
+        first += 1
+    if first >= 4:
+        return False, theta0
+    roots = np.roots(coef[first:])
+    best = theta0
+    best_dist = np.inf
+    found = False
+    for z in roots:
+        modulus = abs(z)
+        # Double roots (tangencies) sit off the circle by about sqrt(eps).
+        if abs(modulus - 1.0) > 1e-4:
+            continue
+        ok, theta = _newton_angle(W, r, mu, np.arctan2(z.imag, z.real), False)
+        if not ok:
+            continue
+        dist = abs(np.arctan2(np.sin(theta - theta0), np.cos(theta - theta0)))
+        if dist < best_dist:
+            best, best_dist, found = theta, dist, True
+    return found, best
+
+
+@njit(cache=True)
+def _slide_eval(W, r, mu, theta):
+    """At slip angle ``theta``: ``(valid, f, df, g, scale)`` with ``f = e x w_T``,
+    ``df = f'``, ``g = e . w_T`` and a velocity scale of ``w_T``'s terms."""
+    ct, st = np.cos(theta), np.sin(theta)
+    den = W[0, 0] - mu * (W[0, 1] * ct + W[0, 2] * st)
+    if den <= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0
+    pn = -r[0] / den
+    a1 = W[1, 0] - mu * (W[1, 1] * ct + W[1, 2] * st)
+    a2 = W[2, 0] - mu * (W[2, 1] * ct + W[2, 2] * st)
+    w1 = pn * a1 + r[1]
+    w2 = pn * a2 + r[2]
+    f = ct * w2 - st * w1
+    g = ct * w1 + st * w2
+    dden = -mu * (-W[0, 1] * st + W[0, 2] * ct)
+    dpn = -pn * dden / den
+    da1 = -mu * (-W[1, 1] * st + W[1, 2] * ct)
+    da2 = -mu * (-W[2, 1] * st + W[2, 2] * ct)
+    dw1 = dpn * a1 + pn * da1
+    dw2 = dpn * a2 + pn * da2
+    df = -g + ct * dw2 - st * dw1
+    scale = abs(r[1]) + abs(r[2]) + pn * (abs(a1) + abs(a2))
+    return pn > 0.0, f, df, g, scale
+
+
+@njit(cache=True)
+def _newton_angle(W, r, mu, theta0, clamp):
+    """Newton on ``f(theta) = 0``; ``(True, theta)`` at a valid root (``g >= 0``).
+
+    ``clamp`` limits steps to half a radian (a start far from any root)."""
+    theta = theta0
+    for _ in range(_NEWTON_ITER):
+        valid, f, df, g, scale = _slide_eval(W, r, mu, theta)
+        if not valid:
+            return False, theta
+        if abs(f) <= 4.0 * _EPS * scale:
+            return g >= 0.0, theta
+        if df == 0.0:
+            return False, theta
+        step = -f / df
+        # A step beyond a quarter turn means Newton is far from its basin.
+        if clamp and step > 0.5:
+            step = 0.5
+        elif clamp and step < -0.5:
+            step = -0.5
+        theta += step
+        if abs(step) <= 4.0 * _EPS * (1.0 + abs(theta)):
+            valid, f, df, g, scale = _slide_eval(W, r, mu, theta)
+            return valid and g >= 0.0 and abs(f) <= 1e-10 * scale, theta
+    return False, theta
+
+
+@njit(cache=True)
+def _scan_angle(W, r, mu, theta0):
+    """Roots of ``f`` with ``g > 0`` on the circle by sign changes and bisection.
+
+    Of several roots, the one nearest ``theta0``.
+    """
+    h = 2.0 * np.pi / _SCAN
+    best = 0.0
+    best_dist = np.inf
+    found = False
+    t_prev = theta0 - np.pi
+    v_prev, f_prev, _, g_prev, _ = _slide_eval(W, r, mu, t_prev)
+    for i in range(1, _SCAN + 1):
+        t = theta0 - np.pi + i * h
+        v, f, _, g, _ = _slide_eval(W, r, mu, t)
+        if v and v_prev and (g > 0.0 or g_prev > 0.0) and (f == 0.0 or f * f_prev < 0.0):
+            lo, hi, flo = t_prev, t, f_prev
+            for _ in range(_BISECT):
+                mid = 0.5 * (lo + hi)
+                if mid <= lo or mid >= hi:
+                    break
+                _, fm, _, _, _ = _slide_eval(W, r, mu, mid)
+                if fm == 0.0:
+                    lo = hi = mid
+                    break
+                if (fm < 0.0) == (flo < 0.0):
+                    lo, flo = mid, fm
+                else:
+                    hi = mid
+            root = 0.5 * (lo + hi)
+            vr, _, _, gr, _ = _slide_eval(W, r, mu, root)
+            dist = abs(root - theta0)
+            if vr and gr >= 0.0 and dist < best_dist:
+                best, best_dist, found = root, dist, True
+        t_prev, v_prev, f_prev, g_prev = t, v, f, g
+    return found, best
+
+
+@njit(cache=True)
+def _best_candidate(W, r, mu, pn, p1, p2, out):
+    """Of separation and the projected stick trial, the one of least local natural map."""
+    m = r.shape[0]
+    cand = np.zeros(m)
+    cand[0] = pn
+    cand[1] = p1
+    if m == 3:
+        cand[2] = p2
+    project_contact(cand, mu)
+    zero = np.zeros(m)
+    if _local_residual(W, r, mu, cand) <= _local_residual(W, r, mu, zero):
+        for k in range(m):
+            out[k] = cand[k]
+    else:
+        for k in range(m):
+            out[k] = 0.0
+
+
+@njit(cache=True)
+def _local_residual(W, r, mu, p):
+    """``|p - P_K(p - rho ŵ)|`` for one contact, ``rho = m / trace(W)``."""
+    m = r.shape[0]
+    tr = 0.0
+    for k in range(m):
+        tr += W[k, k]
+    rho = m / tr
+    w = np.empty(m)
+    for k in range(m):
+        s = r[k]
+        for ll in range(m):
+            s += W[k, ll] * p[ll]
+        w[k] = s
+    nt = 0.0
+    for k in range(1, m):
+        nt += w[k] * w[k]
+    w[0] += mu * np.sqrt(nt)
+    x = np.empty(m)
+    for k in range(m):
+        x[k] = p[k] - rho * w[k]
+    project_contact(x, mu)
+    total = 0.0
+    for k in range(m):
+        total += (p[k] - x[k]) ** 2
+    return np.sqrt(total)
+
+
+# -- the hybrid local solver: Fischer-Burmeister Newton, exact fallback ---------------------
+@njit(cache=True)
+def local_solve_fb(W, Winv, r, mu, start, out):
+    """Newton on the modified Fischer-Burmeister function of one contact, from ``start``.
+
+    With ``X = (mu p_N, p_T)`` and ``Y = (ŵ_N / mu, ŵ_T)`` (``ŵ`` De Saxcé's modified
+    velocity) the law is the complementarity ``L ∋ X ⊥ Y ∈ L`` in the self-dual
+    second-order cone ``L``, i.e. ``phi(p) = X + Y - (X∘X + Y∘Y)^(1/2) = 0`` in the
+    Jordan algebra of ``L`` (Fukushima, Luo and Tseng 2002). Newton's direction uses a
+    forward-difference Jacobian (``phi`` is semismooth, differentiable almost
+    everywhere), with a backtracking line search on ``|phi|^2``. The answer is
+    accepted when its local natural map is below ``_FB_ACCEPT`` times ``rho |r|``
+    (``rho = m / trace(W)``), the bound the exact solver meets; otherwise the exact
+    solver (:func:`local_solve`) answers.
+    This is the hybrid strategy of Gauss-Seidel codes: a fast, warm-started Newton
+    with an exact solve as its safety net. Returns True when Newton answered.
+    """
+    m = r.shape[0]
+    if m == 1 or mu == 0.0 or W[0, 0] <= 0.0:
+        local_solve(W, Winv, r, mu, out)
+        return True
+    # The size of the impulses at stake: rho |r|, rho = m / trace(W) (the step of the
+    # local natural map).
+    tr = 0.0
+    nr = 0.0
+    for k in range(m):
+        tr += W[k, k]
+        nr += r[k] * r[k]
+    scale = m * np.sqrt(nr) / tr
+    if scale == 0.0:
+        for k in range(m):
+            out[k] = 0.0
+        return True
+    p = np.empty(m)
+    for k in range(m):
+        p[k] = start[k]
+    project_contact(p, mu)
+    phi = np.empty(m)
+    trial = np.empty(m)
+    phi_t = np.empty(m)
+    J = np.empty((m, m))
+    rhs = np.empty(m)
+    dp = np.empty(m)
+    _fb_value(W, r, mu, p, phi)
+    merit = _sq(phi)
+    for _ in range(_FB_ITER):
+        if _local_residual(W, r, mu, p) <= _FB_ACCEPT * scale:
+            break
+        h = np.sqrt(_EPS) * scale
+        for ll in range(m):
+            for k in range(m):
+                trial[k] = p[k]
+            trial[ll] += h
+            _fb_value(W, r, mu, trial, phi_t)
+            for k in range(m):
+                J[k, ll] = (phi_t[k] - phi[k]) / h
+        for k in range(m):
+            rhs[k] = -phi[k]
+        if not _solve_small(J, rhs, dp):
+            break
+        t = 1.0
+        improved = False
+        for _ls in range(30):
+            for k in range(m):
+                trial[k] = p[k] + t * dp[k]
+            _fb_value(W, r, mu, trial, phi_t)
+            merit_t = _sq(phi_t)
+            if merit_t <= (1.0 - 1e-4 * t) * merit:
+                improved = True
+                break
+            t *= 0.5
+        if not improved:
+            break
+        for k in range(m):
+            p[k] = trial[k]
+            phi[k] = phi_t[k]
+        merit = merit_t
+    project_contact(p, mu)
+    if _local_residual(W, r, mu, p) <= _FB_ACCEPT * scale:
+        for k in range(m):
+            out[k] = p[k]
+        return True
+    local_solve(W, Winv, r, mu, out)
+    return False
+
+
+@njit(cache=True)
+def _sq(x):
+    total = 0.0
+    for k in range(x.shape[0]):
+        total += x[k] * x[k]
+    return total
+
+
+@njit(cache=True)
+def _fb_value(W, r, mu, p, phi):
+    """``phi = X + Y - (X∘X + Y∘Y)^(1/2)`` for impulse ``p`` (see :func:`local_solve_fb`).
+
+    Written out for ``m`` in {2, 3}, without temporary arrays (it runs a few times per
+    Newton iteration of every contact of every sweep).
+    """
+    m = r.shape[0]
+    w0 = r[0] + W[0, 0] * p[0] + W[0, 1] * p[1]
+    w1 = r[1] + W[1, 0] * p[0] + W[1, 1] * p[1]
+    w2 = 0.0
+    p2 = 0.0
+    if m == 3:
+        p2 = p[2]
+        w0 += W[0, 2] * p2
+        w1 += W[1, 2] * p2
+        w2 = r[2] + W[2, 0] * p[0] + W[2, 1] * p[1] + W[2, 2] * p2
+    x0 = mu * p[0]
+    y0 = (w0 + mu * np.sqrt(w1 * w1 + w2 * w2)) / mu
+    # z = X∘X + Y∘Y = (|X|^2 + |Y|^2, 2 x0 x_T + 2 y0 y_T)
+    z0 = x0 * x0 + y0 * y0 + p[1] * p[1] + w1 * w1 + p2 * p2 + w2 * w2
+    z1 = 2.0 * (x0 * p[1] + y0 * w1)
+    z2 = 2.0 * (x0 * p2 + y0 * w2)
+    nz = np.sqrt(z1 * z1 + z2 * z2)
+    s1 = np.sqrt(max(z0 - nz, 0.0))
+    s2 = np.sqrt(z0 + nz)
+    # sqrt(z) = ((s1 + s2) / 2, (s2 - s1) / 2 zb / |zb|)
+    half = 0.5 * (s2 - s1) / nz if nz > 0.0 else 0.0
+    phi[0] = x0 + y0 - 0.5 * (s1 + s2)
+    phi[1] = p[1] + w1 - half * z1
+    if m == 3:
+        phi[2] = p2 + w2 - half * z2
+
+
+@njit(cache=True)
+def _solve_small(J, b, x):
+    """``x = J^-1 b`` for ``m <= 3`` by Gaussian elimination with partial pivoting, in
+    place on ``J`` and ``b``; False when ``J`` is singular to rounding."""
+    m = b.shape[0]
+    big = 0.0
+    for i in range(m):
+        for j in range(m):
+            big = max(big, abs(J[i, j]))
+    if big == 0.0:
+        return False
+    for c in range(m):
+        piv = c
+        for i in range(c + 1, m):
+            if abs(J[i, c]) > abs(J[piv, c]):
+                piv = i
+        if abs(J[piv, c]) <= 1e-14 * big:
+            return False
+        if piv != c:
+            for j in range(m):
+                J[c, j], J[piv, j] = J[piv, j], J[c, j]
+            b[c], b[piv] = b[piv], b[c]
+        for i in range(c + 1, m):
+            f = J[i, c] / J[c, c]
+            for j in range(c, m):
+                J[i, j] -= f * J[c, j]
+            b[i] -= f * b[c]
+    for i in range(m - 1, -1, -1):
+        s = b[i]
+        for j in range(i + 1, m):
+            s -= J[i, j] * x[j]
+        x[i] = s / J[i, i]
+    return True
