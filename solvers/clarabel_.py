@@ -9,7 +9,8 @@ dimension 3 per contact in 3D; impulses from Clarabel's dual variables ``z``.
 (:meth:`cocd.problem.ConicProblem.dual_conic_form`, ``W`` sparse); velocities
 ``u = U + M^-1 H'p``.
 
-Both go through Clarabel's own Python API (not cvxpy).
+One function for both, :func:`clarabel_solve_problem`, taking the form
+(:mod:`solvers._conic`); both go through Clarabel's own Python API (not cvxpy).
 
 ========================  =====================================================
 cocd                      Clarabel
@@ -43,17 +44,18 @@ Polishing fixes the active set such contacts belong to.
 
 from __future__ import annotations
 
+import functools
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import clarabel
 import numpy as np
 import scipy.sparse as sp
 
-from cocd.errors import ProblemError
+from solvers._conic import answer, conic_form, no_free_setting, to_target
 from solvers.base import Solution, Status
-from solvers.refine import Attempt, solve_to_target
+from solvers.refine import Attempt
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -83,6 +85,7 @@ _MAPPED = {"tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio", "time_limit"
 def clarabel_solve_problem(
     problem: ConicProblem,
     *,
+    form: str = "primal",
     tol: float = 1e-8,
     warm_start: NDArray[np.float64] | None = None,
     max_iter: int | None = None,
@@ -90,100 +93,43 @@ def clarabel_solve_problem(
     verbose: bool = False,
     **options: Any,
 ) -> Solution:
-    """Solve the COCD primal of ``problem`` with Clarabel (see the module's table)."""
+    """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with Clarabel (see the
+    module's table)."""
     start = time.perf_counter()
-    form = problem.primal_conic_form()
-    return _solve(
-        problem,
-        form,
-        # Impulses are the duals z of the contact rows; the velocity is the primal x.
-        lambda sol: (form.impulses(np.asarray(sol.z)), form.velocity(np.asarray(sol.x))),
-        "clarabel",
-        start,
-        tol,
-        max_iter,
-        time_limit,
-        verbose,
-        options,
-    )
-
-
-def clarabel_dual_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
-) -> Solution:
-    """Solve the force-based dual of ``problem`` with Clarabel (see the module's table)."""
-    start = time.perf_counter()
-    form = problem.dual_conic_form()
-    return _solve(
-        problem,
-        form,
-        # Impulses are the primal x; the velocity follows from them.
-        lambda sol: (form.impulses(np.asarray(sol.x)), None),
-        "clarabel-dual",
-        start,
-        tol,
-        max_iter,
-        time_limit,
-        verbose,
-        options,
-    )
-
-
-def _solve(
-    problem: ConicProblem,
-    form: PrimalConicForm | DualConicForm,
-    answer: Callable[[Any], tuple[NDArray[np.float64], NDArray[np.float64] | None]],
-    name: str,
-    start: float,
-    tol: float,
-    max_iter: int | None,
-    time_limit: float | None,
-    verbose: bool,
-    options: dict[str, Any],
-) -> Solution:
+    model = conic_form(problem, form)
     polish = bool(options.pop("polish", True))
     settings = _settings(verbose, max_iter, options)
-    cones = _cones(form.cones)
-    setup_time = time.perf_counter() - start
+    cones = _cones(model.cones)
 
     def attempt(native_tol: float, time_left: float | None) -> Attempt:
-        sol = _run(form, cones, settings, native_tol, time_left)
-        native = _native(sol)
-        p, u = answer(sol)
-        return Attempt(
-            p=p,
-            u=u,
-            status=STATUS_MAP.get(native, Status.ERROR),
-            native_status=native,
-            iterations=int(sol.iterations),
-            extras=_extras(sol),
-        )
+        sol = _run(model, cones, settings, native_tol, time_left)
+        native = str(sol.status).split(".")[-1]
+        p, u = answer(model, np.asarray(sol.x), np.asarray(sol.z))
+        status = STATUS_MAP.get(native, Status.ERROR)
+        return Attempt(p, u, status, native, int(sol.iterations), _extras(sol))
 
-    return solve_to_target(
+    return to_target(
         problem,
+        form,
         tol,
         attempt,
-        solver=name,
-        setup_time=setup_time,
+        base="clarabel",
+        start=start,
         time_limit=time_limit,
         polish=polish,
     )
+
+
+#: The force-based dual, for direct calls (the registry passes ``form="dual"``).
+clarabel_dual_solve_problem = functools.partial(clarabel_solve_problem, form="dual")
 
 
 def _settings(verbose: bool, max_iter: int | None, options: dict[str, Any]) -> Any:
     settings = clarabel.DefaultSettings()
     for key, value in options.items():
         if key.startswith("_") or not hasattr(settings, key) or key in _MAPPED:
-            raise ProblemError(
-                f"clarabel has no free setting {key!r} (tolerances follow tol); "
-                "see clarabel.DefaultSettings"
+            raise no_free_setting(
+                "clarabel", key, "tolerances follow tol", "see clarabel.DefaultSettings"
             )
         setattr(settings, key, value)
     settings.verbose = verbose
@@ -217,10 +163,6 @@ def _run(
     # Clarabel reads the upper triangle of P.
     P = sp.triu(form.P, format="csc")
     return clarabel.DefaultSolver(P, form.q, form.A, form.b, cones, settings).solve()
-
-
-def _native(sol: Any) -> str:
-    return str(sol.status).split(".")[-1]
 
 
 def _extras(sol: Any) -> dict[str, Any]:

@@ -57,8 +57,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from cocd.errors import ProblemError
+from solvers._conic import answer, no_free_setting, to_target
 from solvers.base import Solution, Status
-from solvers.refine import Attempt, solve_to_target
+from solvers.refine import Attempt
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -129,16 +130,17 @@ def ecos_solve_problem(
     polish = bool(options.pop("polish", True))
     for key in options:
         if key not in _FREE:
-            raise ProblemError(
-                f"ecos has no free setting {key!r} (tolerances and max_iters follow tol and "
-                f"max_iter); free settings: {', '.join(sorted(_FREE))}"
+            raise no_free_setting(
+                "ecos",
+                key,
+                "tolerances and max_iters follow tol and max_iter",
+                f"free settings: {', '.join(sorted(_FREE))}",
             )
     settings: dict[str, Any] = {**options, "verbose": bool(verbose)}
     if max_iter is not None:
         settings["max_iters"] = int(max_iter)
     c, G, h, dims = epigraph_form(form)
-    rows, n = form.A.shape[0], problem.ndof
-    setup_time = time.perf_counter() - start
+    rows, n = form.A.shape
 
     def attempt(native_tol: float, time_left: float | None) -> Attempt:
         sol = ecos.solve(
@@ -147,32 +149,35 @@ def ecos_solve_problem(
         info = sol["info"]
         flag = int(info["exitFlag"])
         x = np.asarray(sol["x"], dtype=np.float64)
-        z = np.asarray(sol["z"], dtype=np.float64)
-        return Attempt(
-            p=form.impulses(z[:rows]),
-            u=form.velocity(x[:n]),
-            status=STATUS_MAP.get(flag, Status.ERROR),
-            native_status=str(info["infostring"]),
-            iterations=int(info["iter"]),
-            extras={
-                "exit_flag": flag,
-                "objective": float(info["pcost"]),
-                "objective_dual": float(info["dcost"]),
-                "epigraph_t": float(x[n]),
-                "quadratic": 0.5 * float(x[:n] @ (form.P @ x[:n])) + float(form.q @ x[:n]),
-                "r_prim": float(info["pres"]),
-                "r_dual": float(info["dres"]),
-                "gap": float(info["gap"]),
-            },
-        )
+        p, u = answer(form, x[:n], np.asarray(sol["z"], dtype=np.float64)[:rows])
+        status = STATUS_MAP.get(flag, Status.ERROR)
+        native = str(info["infostring"])
+        return Attempt(p, u, status, native, int(info["iter"]), _extras(form, info, flag, x))
 
-    return solve_to_target(
+    return to_target(
         problem,
+        "primal",
         tol,
         attempt,
-        solver="ecos",
-        setup_time=setup_time,
+        base="ecos",
+        start=start,
         time_limit=time_limit,
         polish=polish,
         floor=min(SMALLEST_TOL, tol),
     )
+
+
+def _extras(
+    form: PrimalConicForm, info: dict[str, Any], flag: int, x: NDArray[np.float64]
+) -> dict[str, Any]:
+    n = form.A.shape[1]
+    return {
+        "exit_flag": flag,
+        "objective": float(info["pcost"]),
+        "objective_dual": float(info["dcost"]),
+        "epigraph_t": float(x[n]),
+        "quadratic": 0.5 * float(x[:n] @ (form.P @ x[:n])) + float(form.q @ x[:n]),
+        "r_prim": float(info["pres"]),
+        "r_dual": float(info["dres"]),
+        "gap": float(info["gap"]),
+    }

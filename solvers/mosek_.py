@@ -59,6 +59,7 @@ solution (``tests/test_conic_backends.py``).
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from collections.abc import Sequence
@@ -68,13 +69,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from cocd.errors import ProblemError
+from cocd.problem import PrimalConicForm
+from solvers._conic import answer, conic_form, no_free_setting, to_target
 from solvers.base import Solution, Status
-from solvers.refine import Attempt, solve_to_target
+from solvers.refine import Attempt
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-    from cocd.problem import ConicProblem, DualConicForm, PrimalConicForm
+    from cocd.problem import ConicProblem, DualConicForm
 
 __all__ = [
     "SOLSTA_MAP",
@@ -189,6 +192,7 @@ def _build(
 def mosek_solve_problem(
     problem: ConicProblem,
     *,
+    form: str = "primal",
     tol: float = 1e-8,
     warm_start: NDArray[np.float64] | None = None,
     max_iter: int | None = None,
@@ -196,95 +200,57 @@ def mosek_solve_problem(
     verbose: bool = False,
     **options: Any,
 ) -> Solution:
-    """Solve the COCD primal of ``problem`` with Mosek (see the module's table)."""
+    """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with Mosek (see the
+    module's table)."""
     import mosek
 
     start = time.perf_counter()
-    form = problem.primal_conic_form()
+    model = conic_form(problem, form)
     polish = bool(options.pop("polish", True))
     threads = _threads(options)
+    primal = isinstance(model, PrimalConicForm)
     with mosek.Task() as task:
-        rows = build_primal_task(task, form)
+        if isinstance(model, PrimalConicForm):
+            build_primal_task(task, model)
+        else:
+            build_dual_task(task, model)
         _configure(task, verbose, max_iter, threads)
-        setup_time = time.perf_counter() - start
+        rows, n = model.A.shape
 
         def attempt(native_tol: float, time_left: float | None) -> Attempt:
             status, native, iters = _optimize(task, native_tol, time_left)
             xx = np.asarray(task.getxx(mosek.soltype.itr), dtype=np.float64)
-            doty = np.asarray(task.getaccdotys(mosek.soltype.itr), dtype=np.float64)
-            return Attempt(
-                p=form.impulses(doty[:rows]),
-                u=form.velocity(xx[: problem.ndof]),
-                status=status,
-                native_status=native,
-                iterations=iters,
-                extras=_extras(task),
-            )
+            # The multipliers of the contact rows, read for the primal only.
+            doty = task.getaccdotys(mosek.soltype.itr) if primal else None
+            z = None if doty is None else np.asarray(doty, dtype=np.float64)[:rows]
+            p, u = answer(model, xx[:n], z)
+            return Attempt(p, u, status, native, iters, _extras(task))
 
-        return solve_to_target(
+        return to_target(
             problem,
+            form,
             tol,
             attempt,
-            solver="mosek",
-            setup_time=setup_time,
+            base="mosek",
+            start=start,
             time_limit=time_limit,
             polish=polish,
             floor=min(SMALLEST_TOL, tol),
         )
 
 
-def mosek_dual_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
-) -> Solution:
-    """Solve the force-based dual of ``problem`` with Mosek (see the module's table)."""
-    import mosek
-
-    start = time.perf_counter()
-    form = problem.dual_conic_form()
-    polish = bool(options.pop("polish", True))
-    threads = _threads(options)
-    with mosek.Task() as task:
-        nx = build_dual_task(task, form)
-        _configure(task, verbose, max_iter, threads)
-        setup_time = time.perf_counter() - start
-
-        def attempt(native_tol: float, time_left: float | None) -> Attempt:
-            status, native, iters = _optimize(task, native_tol, time_left)
-            xx = np.asarray(task.getxx(mosek.soltype.itr), dtype=np.float64)
-            return Attempt(
-                p=form.impulses(xx[:nx]),
-                u=None,
-                status=status,
-                native_status=native,
-                iterations=iters,
-                extras=_extras(task),
-            )
-
-        return solve_to_target(
-            problem,
-            tol,
-            attempt,
-            solver="mosek-dual",
-            setup_time=setup_time,
-            time_limit=time_limit,
-            polish=polish,
-            floor=min(SMALLEST_TOL, tol),
-        )
+#: The force-based dual, for direct calls (the registry passes ``form="dual"``).
+mosek_dual_solve_problem = functools.partial(mosek_solve_problem, form="dual")
 
 
 def _threads(options: dict[str, Any]) -> int | None:
     threads = options.pop("num_threads", None)
     if options:
-        raise ProblemError(
-            f"mosek has no free setting {next(iter(options))!r} (tolerances, iterations and "
-            "time follow tol, max_iter and time_limit); free settings: num_threads, polish"
+        raise no_free_setting(
+            "mosek",
+            next(iter(options)),
+            "tolerances, iterations and time follow tol, max_iter and time_limit",
+            "free settings: num_threads, polish",
         )
     return None if threads is None else int(threads)
 

@@ -47,26 +47,24 @@ def _mosek_licence() -> str | None:
     return None
 
 
-#: qpsolvers backend name -> Python module it needs.
-QP_SOLVERS: dict[str, str] = {
-    "clarabel": "clarabel",
-    "cvxopt": "cvxopt",
-    "daqp": "daqp",
-    "ecos": "ecos",
-    "gurobi": "gurobipy",
-    "highs": "highspy",
-    "mosek": "mosek",
-    "osqp": "osqp",
-    "piqp": "piqp",
-    "proxqp": "proxsuite",
-    "qpalm": "qpalm",
-    "quadprog": "quadprog",
-    "scs": "scs",
+#: qpsolvers backend name -> (Python module it needs, first order, takes a starting point).
+#: First-order QP methods (ADMM, splitting) have a limited attainable accuracy; the
+#: starting point is the one qpsolvers passes on (:mod:`solvers.qpsolvers_`).
+QP_SOLVERS: dict[str, tuple[str, bool, bool]] = {
+    "clarabel": ("clarabel", False, False),
+    "cvxopt": ("cvxopt", False, True),
+    "daqp": ("daqp", False, True),
+    "ecos": ("ecos", False, False),
+    "gurobi": ("gurobipy", False, False),
+    "highs": ("highspy", False, False),
+    "mosek": ("mosek", False, False),
+    "osqp": ("osqp", True, True),
+    "piqp": ("piqp", False, False),
+    "proxqp": ("proxsuite", False, True),
+    "qpalm": ("qpalm", True, True),
+    "quadprog": ("quadprog", False, False),
+    "scs": ("scs", True, True),
 }
-#: First-order QP methods (ADMM, splitting): limited attainable accuracy.
-QP_FIRST_ORDER = {"osqp", "scs", "qpalm"}
-#: qpsolvers backends that use a starting point.
-QP_WARM_START = {"osqp", "proxqp", "scs", "daqp", "qpalm", "cvxopt"}
 
 #: cvxpy solver name -> (Python module, takes second-order cones, first order).
 CVXPY_SOLVERS: dict[str, tuple[str, bool, bool]] = {
@@ -82,157 +80,152 @@ CVXPY_SOLVERS: dict[str, tuple[str, bool, bool]] = {
     "HIGHS": ("highspy", False, False),
 }
 
+#: What cocd's iterative methods share: numba kernels, a warm start, first order.
+_ITERATIVE: dict[str, Any] = {"requires": ("numba",), "warm_start": True, "first_order": True}
+_LICENSED: dict[str, Any] = {"needs_licence": True, "probe": _mosek_licence}
+
+
+def _conic(package: str, form: str, description: str, **facts: Any) -> SolverInfo:
+    """A package's conic backend on ``form``: one solve function per package, given
+    ``form="dual"`` by the ``<package>-dual`` entry."""
+    return SolverInfo(
+        name=package if form == "primal" else f"{package}-{form}",
+        entry=f"solvers.{package}_:{package}_solve_problem",
+        formulation=form,
+        requires=(package,),
+        options={} if form == "primal" else {"form": form},
+        description=description,
+        **facts,
+    )
+
+
+def _own(
+    name: str, formulation: str, description: str, module: str = "", **facts: Any
+) -> SolverInfo:
+    """One of cocd's own methods, ``solvers.<module>_:<name>_solve_problem``."""
+    return SolverInfo(
+        name=name,
+        entry=f"solvers.{module or name}_:{name}_solve_problem",
+        formulation=formulation,
+        description=description,
+        **facts,
+    )
+
+
+def _family(name: str, entry: str, modules: tuple[str, ...], **facts: Any) -> SolverInfo:
+    """One member of the ``qp:<name>`` or ``cvxpy:<SOLVER>`` family; ``modules[-1]`` is
+    the package that solves."""
+    return SolverInfo(
+        name=name,
+        entry=entry,
+        requires=modules,
+        needs_licence=modules[-1] in ("mosek", "gurobipy"),
+        probe=_mosek_licence if modules[-1] == "mosek" else None,
+        **facts,
+    )
+
 
 def _builtin() -> list[SolverInfo]:
     infos = [
-        SolverInfo(
-            name="clarabel",
-            entry="solvers.clarabel_:clarabel_solve_problem",
-            requires=("clarabel",),
-            description="Velocity-based primal (COCD) by Clarabel's interior point.",
-        ),
-        SolverInfo(
-            name="ipm",
-            entry="solvers.ipm_:ipm_solve_problem",
+        _conic("clarabel", "primal", "Velocity-based primal (COCD) by Clarabel's interior point."),
+        _own(
+            "ipm",
+            "primal",
+            "Velocity-based primal (COCD) by cocd's interior point: Nesterov-Todd "
+            "scaling, reduced SPD system on the velocities, sparse Cholesky.",
             requires=("qdldl",),
-            description=(
-                "Velocity-based primal (COCD) by cocd's interior point: Nesterov-Todd "
-                "scaling, reduced SPD system on the velocities, sparse Cholesky."
-            ),
             accepts=("linsolve", "threads", "polish", "correctors"),
         ),
-        SolverInfo(
-            name="clarabel-dual",
-            entry="solvers.clarabel_:clarabel_dual_solve_problem",
-            formulation="dual",
-            requires=("clarabel",),
-            description="Force-based dual (impulses) by Clarabel's interior point.",
-        ),
-        SolverInfo(
-            name="scs",
-            entry="solvers.scs_:scs_solve_problem",
-            requires=("scs",),
+        _conic("clarabel", "dual", "Force-based dual (impulses) by Clarabel's interior point."),
+        _conic(
+            "scs",
+            "primal",
+            "Velocity-based primal by SCS (operator splitting).",
             warm_start=True,
             first_order=True,
-            description="Velocity-based primal by SCS (operator splitting).",
         ),
-        SolverInfo(
-            name="scs-dual",
-            entry="solvers.scs_:scs_dual_solve_problem",
-            formulation="dual",
-            requires=("scs",),
+        _conic(
+            "scs",
+            "dual",
+            "Force-based dual by SCS (operator splitting).",
             warm_start=True,
             first_order=True,
-            description="Force-based dual by SCS (operator splitting).",
         ),
-        SolverInfo(
-            name="ecos",
-            entry="solvers.ecos_:ecos_solve_problem",
-            requires=("ecos",),
-            description="Velocity-based primal by ECOS (interior point, epigraph objective).",
+        _conic(
+            "ecos", "primal", "Velocity-based primal by ECOS (interior point, epigraph objective)."
         ),
-        SolverInfo(
-            name="mosek",
-            entry="solvers.mosek_:mosek_solve_problem",
-            requires=("mosek",),
-            needs_licence=True,
-            probe=_mosek_licence,
-            description="Velocity-based primal by Mosek's interior point (the seed paper's).",
+        _conic(
+            "mosek",
+            "primal",
+            "Velocity-based primal by Mosek's interior point (the seed paper's).",
+            **_LICENSED,
         ),
-        SolverInfo(
-            name="mosek-dual",
-            entry="solvers.mosek_:mosek_dual_solve_problem",
-            formulation="dual",
-            requires=("mosek",),
-            needs_licence=True,
-            probe=_mosek_licence,
-            description="Force-based dual by Mosek's interior point.",
-        ),
-    ]
-    infos += [
-        SolverInfo(
-            name="pgs",
-            entry="solvers.pgs_:pgs_solve_problem",
-            formulation="ccp",
-            requires=("numba",),
-            warm_start=True,
-            first_order=True,
-            description="Projected Gauss-Seidel on the cone complementarity problem.",
+        _conic("mosek", "dual", "Force-based dual by Mosek's interior point.", **_LICENSED),
+        _own(
+            "pgs",
+            "ccp",
+            "Projected Gauss-Seidel on the cone complementarity problem.",
             accepts=("omega", "check_every", "polish"),
+            **_ITERATIVE,
         ),
-        SolverInfo(
-            name="bgs",
-            entry="solvers.bgs_:bgs_solve_problem",
-            formulation="ccp",
-            requires=("numba",),
-            warm_start=True,
-            first_order=True,
-            description="Block Gauss-Seidel on the CCP with exact local (3 x 3) solves.",
+        _own(
+            "bgs",
+            "ccp",
+            "Block Gauss-Seidel on the CCP with exact local (3 x 3) solves.",
             accepts=("order", "colour", "check_every", "polish"),
+            **_ITERATIVE,
         ),
-        SolverInfo(
-            name="apgd",
-            entry="solvers.apgd_:apgd_solve_problem",
-            formulation="dual",
-            requires=("numba",),
-            warm_start=True,
-            first_order=True,
-            description="Accelerated projected gradient descent (Nesterov, restart) on the dual.",
+        _own(
+            "apgd",
+            "dual",
+            "Accelerated projected gradient descent (Nesterov, restart) on the dual.",
             accepts=("check_every", "scaling", "polish"),
+            **_ITERATIVE,
         ),
-        SolverInfo(
-            name="nscd",
-            entry="solvers.nscd_:nscd_solve_problem",
-            formulation="coulomb",
+        _own(
+            "nscd",
+            "coulomb",
+            "Non-convex Coulomb law (NSCD): Gauss-Seidel with an exact local solver.",
             convex=False,
-            requires=("numba",),
-            warm_start=True,
-            first_order=True,
-            description="Non-convex Coulomb law (NSCD): Gauss-Seidel with an exact local solver.",
             accepts=("relax", "symmetric", "check_every", "local"),
+            **_ITERATIVE,
         ),
-        SolverInfo(
-            name="fp",
-            entry="solvers.fixed_point_:fp_solve_problem",
-            formulation="coulomb",
+        _own(
+            "fp",
+            "coulomb",
+            "Non-convex Coulomb law as a sequence of convex problems: fp:<backend> "
+            "(bare fp: fp:clarabel-dual).",
+            module="fixed_point",
             convex=False,
             warm_start=True,
-            description=(
-                "Non-convex Coulomb law as a sequence of convex problems: fp:<backend> "
-                "(bare fp: fp:clarabel-dual)."
-            ),
             accepts=("inner", "inner_tol", "max_outer", "inner_options"),
         ),
     ]
-    for qp, module in QP_SOLVERS.items():
-        infos.append(
-            SolverInfo(
-                name=f"qp:{qp}",
-                entry="solvers.qpsolvers_:qp_solve_problem",
-                requires=("qpsolvers", module),
-                needs_licence=qp in ("mosek", "gurobi"),
-                probe=_mosek_licence if qp == "mosek" else None,
-                options={"qp_solver": qp},
-                linear_cones_only=True,
-                first_order=qp in QP_FIRST_ORDER,
-                warm_start=qp in QP_WARM_START,
-                description=f"Velocity-based primal as a QP by {qp} through qpsolvers.",
-            )
+    infos += [
+        _family(
+            f"qp:{qp}",
+            "solvers.qpsolvers_:qp_solve_problem",
+            ("qpsolvers", module),
+            options={"qp_solver": qp},
+            linear_cones_only=True,
+            first_order=first_order,
+            warm_start=warm_start,
+            description=f"Velocity-based primal as a QP by {qp} through qpsolvers.",
         )
-    for solver, (module, soc, first_order) in CVXPY_SOLVERS.items():
-        infos.append(
-            SolverInfo(
-                name=f"cvxpy:{solver}",
-                entry="solvers.cvxpy_:cvxpy_solve_problem",
-                requires=("cvxpy", module),
-                needs_licence=solver == "MOSEK",
-                probe=_mosek_licence if solver == "MOSEK" else None,
-                options={"cvxpy_solver": solver},
-                linear_cones_only=not soc,
-                first_order=first_order,
-                description=f"Velocity-based primal written in cvxpy, solved by {solver}.",
-            )
+        for qp, (module, first_order, warm_start) in QP_SOLVERS.items()
+    ]
+    infos += [
+        _family(
+            f"cvxpy:{solver}",
+            "solvers.cvxpy_:cvxpy_solve_problem",
+            ("cvxpy", module),
+            options={"cvxpy_solver": solver},
+            linear_cones_only=not soc,
+            first_order=first_order,
+            description=f"Velocity-based primal written in cvxpy, solved by {solver}.",
         )
+        for solver, (module, soc, first_order) in CVXPY_SOLVERS.items()
+    ]
     return infos
 
 

@@ -8,7 +8,8 @@ impulses from SCS's dual variables ``y`` of the contact rows.
 (:meth:`cocd.problem.ConicProblem.dual_conic_form`, ``P = mass_scale W``
 sparse); impulses from ``x``, velocities ``u = U + M^-1 H'p``.
 
-Both through SCS's own Python API (``scs.SCS``, not cvxpy). The forms already
+One function for both, :func:`scs_solve_problem`, taking the form
+(:mod:`solvers._conic`), through SCS's own Python API (``scs.SCS``, not cvxpy). The forms already
 order their rows as SCS wants them (zero, nonnegative, second-order cones);
 SCS is given the upper triangle of ``P``. The impulses are projected on their
 Coulomb cones (SCS's ``y`` lies in the dual cone and its ``s`` in the cone, but
@@ -69,8 +70,9 @@ whenever the active set read is right.
 
 from __future__ import annotations
 
+import functools
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -80,9 +82,9 @@ import scs
 from numpy.typing import NDArray
 
 from cocd.cones import project_coulomb
-from cocd.errors import ProblemError
+from solvers._conic import answer, conic_form, no_free_setting, to_target
 from solvers.base import Solution, Status
-from solvers.refine import Attempt, solve_to_target
+from solvers.refine import Attempt
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem, DualConicForm, PrimalConicForm
@@ -127,6 +129,7 @@ Start = tuple[FloatArray, FloatArray, FloatArray]
 def scs_solve_problem(
     problem: ConicProblem,
     *,
+    form: str = "primal",
     tol: float = 1e-8,
     warm_start: NDArray[np.float64] | None = None,
     max_iter: int | None = None,
@@ -134,112 +137,41 @@ def scs_solve_problem(
     verbose: bool = False,
     **options: Any,
 ) -> Solution:
-    """Solve the COCD primal of ``problem`` with SCS (see the module's table)."""
+    """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with SCS (see the module's
+    table)."""
     start = time.perf_counter()
-    form = problem.primal_conic_form()
-    first = None if warm_start is None else _primal_start(form, warm_start)
-    # Impulses are the duals y of the contact rows; the velocity is the primal x.
-    return _run_form(
-        problem,
-        form,
-        lambda sol: (form.impulses(sol["y"]), form.velocity(sol["x"])),
-        first,
-        "scs",
-        start,
-        tol,
-        max_iter,
-        time_limit,
-        verbose,
-        options,
-    )
-
-
-def scs_dual_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
-) -> Solution:
-    """Solve the force-based dual of ``problem`` with SCS (see the module's table)."""
-    start = time.perf_counter()
-    form = problem.dual_conic_form()
-    first = None if warm_start is None else _dual_start(form, warm_start)
-    # Impulses are the primal x; the velocity follows from them.
-    return _run_form(
-        problem,
-        form,
-        lambda sol: (form.impulses(sol["x"]), None),
-        first,
-        "scs-dual",
-        start,
-        tol,
-        max_iter,
-        time_limit,
-        verbose,
-        options,
-    )
-
-
-def _run_form(
-    problem: ConicProblem,
-    form: Any,
-    answer: Any,
-    first: Start | None,
-    name: str,
-    start: float,
-    tol: float,
-    max_iter: int | None,
-    time_limit: float | None,
-    verbose: bool,
-    options: dict[str, Any],
-) -> Solution:
-    """The set-up and solve shared by the primal and the dual."""
+    model = conic_form(problem, form)
+    first = None if warm_start is None else _START[form](model, warm_start)
     polish = bool(options.pop("polish", True))
     settings = _settings(verbose, max_iter, options)
-    data, cone = _data(form)
-    setup_time = time.perf_counter() - start
+    data, cone = _data(model)
     runner = _Runner(data, cone, settings, first)
 
     def attempt(native_tol: float, time_left: float | None) -> Attempt:
         sol = runner.run(native_tol, time_left)
         info = sol["info"]
-        p, u = answer(sol)
-        return Attempt(
-            p=project_coulomb(p, problem.mu),
-            u=u,
-            status=STATUS_MAP.get(int(info["status_val"]), Status.ERROR),
-            native_status=str(info["status"]),
-            iterations=int(info["iter"]),
-            extras=_extras(info),
-        )
+        p, u = answer(model, sol["x"], sol["y"])
+        status = STATUS_MAP.get(int(info["status_val"]), Status.ERROR)
+        iterations = int(info["iter"])
+        p = project_coulomb(p, problem.mu)
+        return Attempt(p, u, status, str(info["status"]), iterations, _extras(info))
 
-    return _solve(problem, tol, attempt, name, setup_time, time_limit, polish)
-
-
-def _solve(
-    problem: ConicProblem,
-    tol: float,
-    attempt: Any,
-    name: str,
-    setup_time: float,
-    time_limit: float | None,
-    polish: bool,
-) -> Solution:
-    return solve_to_target(
+    return to_target(
         problem,
+        form,
         tol,
         attempt,
-        solver=name,
-        setup_time=setup_time,
+        base="scs",
+        start=start,
         time_limit=time_limit,
         polish=polish,
         first_factor=FIRST_EPS_FACTOR,
         floor=min(SMALLEST_EPS, tol),
     )
+
+
+#: The force-based dual, for direct calls (the registry passes ``form="dual"``).
+scs_dual_solve_problem = functools.partial(scs_solve_problem, form="dual")
 
 
 class _Runner:
@@ -278,9 +210,11 @@ class _Runner:
 def _settings(verbose: bool, max_iter: int | None, options: dict[str, Any]) -> dict[str, Any]:
     for key in options:
         if key not in _FREE:
-            raise ProblemError(
-                f"scs has no free setting {key!r} (eps, max_iters and time_limit_secs follow "
-                f"tol, max_iter and time_limit); free settings: {', '.join(sorted(_FREE))}"
+            raise no_free_setting(
+                "scs",
+                key,
+                "eps, max_iters and time_limit_secs follow tol, max_iter and time_limit",
+                f"free settings: {', '.join(sorted(_FREE))}",
             )
     settings = dict(options)
     settings["verbose"] = bool(verbose)
@@ -384,6 +318,13 @@ def _dual_start(form: DualConicForm, p0: NDArray[np.float64]) -> Start:
     if not np.all(np.isfinite(y)):
         y = np.zeros(form.A.shape[0])
     return x, _project(np.asarray(y, dtype=np.float64), form.cones, dual=True), s
+
+
+#: The starting point of each form for impulses ``p0``.
+_START: dict[str, Callable[[Any, NDArray[np.float64]], Start]] = {
+    "primal": _primal_start,
+    "dual": _dual_start,
+}
 
 
 def _extras(info: dict[str, Any]) -> dict[str, Any]:

@@ -1,0 +1,88 @@
+"""What the conic backends (clarabel, scs, ecos, mosek) share.
+
+Each takes the form it solves as ``form``: ``"primal"`` (the velocity-based
+primal, :meth:`cocd.problem.ConicProblem.primal_conic_form`) or ``"dual"``
+(the force-based dual, :meth:`cocd.problem.ConicProblem.dual_conic_form`);
+the registry's ``<name>-dual`` entries pass ``form="dual"``. Here: the form
+itself, how impulses and velocities are read from a native answer, the
+refusal of a native setting, and the run to the framework's target.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from cocd.errors import ProblemError
+from cocd.problem import PrimalConicForm
+from solvers.refine import FIRST_TOL_FACTOR, SMALLEST_NATIVE_TOL, Attempt, solve_to_target
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from cocd.problem import ConicProblem, DualConicForm
+    from solvers.base import Solution
+
+__all__ = ["FORMS", "answer", "conic_form", "no_free_setting", "to_target"]
+
+FORMS = ("primal", "dual")
+
+
+def conic_form(problem: ConicProblem, form: str) -> PrimalConicForm | DualConicForm:
+    """The ``form`` (``"primal"`` or ``"dual"``) of ``problem``."""
+    if form == "primal":
+        return problem.primal_conic_form()
+    if form == "dual":
+        return problem.dual_conic_form()
+    raise ProblemError(f"form must be one of {', '.join(FORMS)}, got {form!r}")
+
+
+def answer(
+    form: PrimalConicForm | DualConicForm,
+    x: NDArray[np.float64],
+    z: NDArray[np.float64] | None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """Impulses and velocity (``None``: it follows from them) of a native answer.
+
+    The primal's impulses are the duals ``z`` of its contact rows and its velocity
+    the primal ``x``; the dual's impulses are its primal ``x``.
+    """
+    if isinstance(form, PrimalConicForm):
+        assert z is not None
+        return form.impulses(z), form.velocity(x)
+    return form.impulses(x), None
+
+
+def no_free_setting(name: str, key: str, follows: str, settings: str) -> ProblemError:
+    """The error for a setting ``key`` that ``name`` does not leave to the user."""
+    return ProblemError(f"{name} has no free setting {key!r} ({follows}); {settings}")
+
+
+def to_target(
+    problem: ConicProblem,
+    form: str,
+    tol: float,
+    attempt: Callable[[float, float | None], Attempt],
+    *,
+    base: str,
+    start: float,
+    time_limit: float | None,
+    polish: bool,
+    first_factor: float = FIRST_TOL_FACTOR,
+    floor: float = SMALLEST_NATIVE_TOL,
+) -> Solution:
+    """:func:`solvers.refine.solve_to_target` for backend ``base`` on ``form``; set-up is
+    everything since ``start``. The solver is named ``base`` or ``base-dual``."""
+    return solve_to_target(
+        problem,
+        tol,
+        attempt,
+        solver=base if form == "primal" else f"{base}-{form}",
+        setup_time=time.perf_counter() - start,
+        time_limit=time_limit,
+        polish=polish,
+        first_factor=first_factor,
+        floor=floor,
+    )
