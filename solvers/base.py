@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
 
-__all__ = ["Solution", "SolveFunction", "SolverInfo", "Status"]
+__all__ = ["Solution", "SolveFunction", "SolverInfo", "Status", "installed"]
 
 FloatArray = NDArray[np.float64]
 
@@ -145,7 +145,7 @@ class SolverInfo:
     def unavailable_reason(self) -> str | None:
         """Why the backend cannot be used here, or ``None`` if it can."""
         for module in self.requires:
-            if not _installed(module):
+            if not installed(module):
                 return f"Python package '{module}' is not installed"
         if self.probe is not None:
             return self.probe()
@@ -158,7 +158,7 @@ class SolverInfo:
 
 
 @functools.cache
-def _installed(module: str) -> bool:
+def installed(module: str) -> bool:
     """Whether ``module`` can be imported, found without importing it."""
     try:
         return importlib.util.find_spec(module) is not None

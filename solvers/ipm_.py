@@ -16,10 +16,10 @@ symbolic factorisation are computed once per solve. ``dz`` and ``ds`` follow
 by products with ``A`` and the cone blocks. Predictor and corrector share one
 numerical factorisation per iteration.
 
-Linear solvers (option ``linsolve``): PARDISO (Intel MKL through ``pypardiso``, a
-dependency where MKL has wheels), CHOLMOD (through ``cvxopt``), QDLDL. The default
-is the first installed of these, the fastest first (their times per factorisation
-are in ``results/full/table1.md``).
+Linear solvers (option ``linsolve``, :mod:`solvers._ipm_linsolve`): PARDISO (Intel MKL
+through ``pypardiso``, a dependency where MKL has wheels), CHOLMOD (through ``cvxopt``),
+QDLDL. The default is the first installed of these, the fastest first (their times
+per factorisation are in ``results/full/table1.md``).
 
 ========================  =====================================================
 cocd                      ipm
@@ -55,8 +55,6 @@ factor's nonzeros as PARDISO reports them; ``None`` for the other solvers).
 
 from __future__ import annotations
 
-import ctypes
-import importlib.util
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -75,6 +73,7 @@ from solvers._ipm_kernels import (
     max_step_soc,
     pair_positions,
 )
+from solvers._ipm_linsolve import LINEAR, LINSOLVES, default_linsolve
 from solvers.base import Solution, Status
 from solvers.polish import polish_impulses
 
@@ -83,7 +82,6 @@ if TYPE_CHECKING:
 
 __all__ = ["LINSOLVES", "ReducedSystem", "ipm_solve_problem"]
 
-LINSOLVES = ("pardiso", "cholmod", "qdldl")
 DEFAULT_MAX_ITER = 100
 STEP_FRACTION = 0.99
 STALL_ITERATIONS = 6
@@ -97,165 +95,6 @@ GONDZIO_ACCEPT = 0.1
 DEFAULT_CORRECTORS = 2
 #: Most consecutive nonnegative rows on the same unknowns assembled as one group.
 LINEAR_GROUP = 4
-
-
-def _installed(module: str) -> bool:
-    try:
-        return importlib.util.find_spec(module) is not None
-    except (ImportError, ValueError):
-        return False
-
-
-def default_linsolve() -> str:
-    if _installed("pypardiso"):
-        return "pardiso"
-    if _installed("cvxopt"):
-        return "cholmod"
-    return "qdldl"
-
-
-# -- linear solvers on the upper-triangular CSR pattern of K ----------------------------
-_PARDISO: list[Any] = []  # one PyPardisoSolver per process: creating one searches for MKL
-
-
-class _Pardiso:
-    """PARDISO through pypardiso's MKL binding, with the 1-based CSR arrays kept."""
-
-    def __init__(self, K: sp.csr_matrix, threads: int) -> None:
-        import pypardiso
-
-        if not _PARDISO:
-            solver = pypardiso.PyPardisoSolver(mtype=2)  # real SPD
-            # Explicit parameters (iparm[0] = 1): with the defaults (iparm[0] = 0) MKL
-            # runs iterative refinement in every solve, which made each solve five times
-            # slower (9.2 ms against 1.9 ms on an 8308-disc K) for no accuracy gained:
-            # ipm refines against K itself when it has to.
-            ip = solver.iparm
-            ip[:] = 0
-            ip[0] = 1  # parameters given below
-            ip[1] = 2  # METIS nested dissection
-            ip[7] = 0  # no iterative refinement in the solve phase
-            ip[9] = 13  # pivot perturbation 1e-13 (indefinite types only)
-            ip[17] = -1  # report the factor's nonzeros
-            _PARDISO.append(solver)
-        self.solver = _PARDISO[0]
-        # An input (< 0: report) that PARDISO overwrites with the count: ask again for
-        # every matrix, or the handle shared between solves reports the first one's.
-        self.solver.iparm[17] = -1
-        setter = getattr(self.solver.libmkl, "MKL_Set_Num_Threads", None)
-        if setter is not None:
-            setter(ctypes.c_int(threads))
-        self.n = K.shape[0]
-        self.data = np.ascontiguousarray(K.data, dtype=np.float64)
-        self.ia = (K.indptr + 1).astype(np.int32)
-        self.ja = (K.indices + 1).astype(np.int32)
-        self.call(11, np.zeros(self.n))
-
-    def call(self, phase: int, b: Any) -> Any:
-        s = self.solver
-        b = np.ascontiguousarray(b, dtype=np.float64)
-        x = np.zeros_like(b)
-        error = ctypes.c_int32(0)
-        i32 = ctypes.POINTER(ctypes.c_int32)
-        f64 = ctypes.POINTER(ctypes.c_double)
-        s._mkl_pardiso(
-            s.pt.ctypes.data_as(ctypes.POINTER(s._pt_type[0])),
-            ctypes.byref(ctypes.c_int32(1)),
-            ctypes.byref(ctypes.c_int32(1)),
-            ctypes.byref(ctypes.c_int32(s.mtype)),
-            ctypes.byref(ctypes.c_int32(phase)),
-            ctypes.byref(ctypes.c_int32(self.n)),
-            self.data.ctypes.data_as(f64),
-            self.ia.ctypes.data_as(i32),
-            self.ja.ctypes.data_as(i32),
-            s.perm.ctypes.data_as(i32),
-            ctypes.byref(ctypes.c_int32(1)),
-            s.iparm.ctypes.data_as(i32),
-            ctypes.byref(ctypes.c_int32(0)),
-            b.ctypes.data_as(f64),
-            x.ctypes.data_as(f64),
-            ctypes.byref(error),
-        )
-        if error.value != 0:
-            raise np.linalg.LinAlgError(f"PARDISO phase {phase} failed with error {error.value}")
-        return x
-
-    def factor(self, data: Any) -> None:
-        self.data[:] = data
-        self.call(22, np.zeros(self.n))
-
-    @property
-    def factor_nnz(self) -> int | None:
-        """Nonzeros of the Cholesky factor (PARDISO's report)."""
-        return int(self.solver.iparm[17])
-
-    def solve(self, rhs: Any) -> Any:
-        return self.call(33, rhs)
-
-    def close(self) -> None:
-        self.call(-1, np.zeros(self.n))
-
-
-class _Cholmod:
-    def __init__(self, K: sp.csr_matrix, threads: int) -> None:
-        from cvxopt import cholmod, matrix, spmatrix
-
-        self.cholmod, self.matrix, self.spmatrix = cholmod, matrix, spmatrix
-        # Upper CSR of K is the lower CSC of K: hand CHOLMOD the lower triangle.
-        n = K.shape[0]
-        self.n = n
-        self.I = matrix(K.indices, tc="i")
-        cols = np.repeat(np.arange(n), np.diff(K.indptr))
-        self.J = matrix(cols, tc="i")
-        self.K = K
-        self.F = cholmod.symbolic(self._matrix(K.data), uplo="L")
-
-    def _matrix(self, data: Any) -> Any:
-        return self.spmatrix(
-            self.matrix(np.ascontiguousarray(data)), self.I, self.J, (self.n, self.n)
-        )
-
-    factor_nnz = None
-
-    def factor(self, data: Any) -> None:
-        self.cholmod.numeric(self._matrix(data), self.F)
-
-    def solve(self, rhs: Any) -> Any:
-        B = self.matrix(np.ascontiguousarray(rhs, dtype=np.float64))
-        self.cholmod.solve(self.F, B)
-        return np.array(B).reshape(-1)
-
-    def close(self) -> None:
-        pass
-
-
-class _Qdldl:
-    def __init__(self, K: sp.csr_matrix, threads: int) -> None:
-        # The upper CSR of K read column by column: QDLDL takes the upper CSC.
-        marker = sp.csr_matrix((np.arange(1.0, K.nnz + 1.0), K.indices, K.indptr), K.shape)
-        self.upper_csc = sp.csc_matrix(marker)
-        self.upper_csc.sort_indices()
-        self._perm = (self.upper_csc.data - 1.0).astype(np.int64)
-        self.F: Any = None
-        self.factor_nnz: int | None = None
-
-    def factor(self, data: Any) -> None:
-        import qdldl
-
-        self.upper_csc.data[:] = np.asarray(data)[self._perm]
-        if self.F is None:
-            self.F = qdldl.Solver(self.upper_csc)
-        else:
-            self.F.update(self.upper_csc)
-
-    def solve(self, rhs: Any) -> Any:
-        return np.asarray(self.F.solve(np.asarray(rhs, dtype=np.float64))).reshape(-1)
-
-    def close(self) -> None:
-        pass
-
-
-_LINEAR = {"pardiso": _Pardiso, "cholmod": _Cholmod, "qdldl": _Qdldl}
 
 
 # -- cones ---------------------------------------------------------------------------
@@ -464,7 +303,7 @@ def ipm_solve_problem(
 ) -> Solution:
     """Solve the COCD primal of ``problem`` (see the module's table)."""
     linsolve = str(options.get("linsolve") or default_linsolve())
-    if linsolve not in _LINEAR:
+    if linsolve not in LINEAR:
         raise ProblemError(f"ipm: linsolve must be one of {LINSOLVES}, got {linsolve!r}")
     threads = int(options.get("threads", 2))
     polish = bool(options.get("polish", True))
@@ -509,7 +348,7 @@ def ipm_solve_problem(
         nonlocal lin
         if lin is None:
             K.data[:] = data
-            lin = _LINEAR[linsolve](K, threads)
+            lin = LINEAR[linsolve](K, threads)
         # K is positive definite (P is), but Theta spans many orders of magnitude near
         # the end (sliding contacts sit on the cone's boundary): when the factorisation
         # meets a non-positive pivot, scale the diagonal up by a tiny relative amount

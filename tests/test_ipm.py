@@ -16,7 +16,8 @@ import scipy.sparse as sp
 import solvers
 from cocd import Stepper, assemble, box_3d, column_2d, detect_contacts
 from cocd.errors import ProblemError
-from solvers.ipm_ import LINSOLVES, ReducedSystem, _Cones, _installed
+from solvers.base import installed as _installed
+from solvers.ipm_ import LINSOLVES, ReducedSystem, _Cones
 
 MODULE = {"pardiso": "pypardiso", "cholmod": "cvxopt", "qdldl": "qdldl"}
 
