@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from cocd.checks import positive_number
 from cocd.errors import SceneError
 from cocd.packing import rain_deposition
 from cocd.resources import BYTES_PER_GRAIN, check_fits
@@ -17,23 +18,13 @@ G = 9.81
 RAIN_FRACTION = {2: 0.84, 3: 0.63}
 
 
-def _dim(dim: int) -> int:
+def check_dim(dim: int) -> int:
     if dim not in (2, 3):
         raise SceneError(f"dim must be 2 or 3, got {dim!r}")
     return int(dim)
 
 
-def _positive(name: str, value: float) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise SceneError(f"{name} must be a number, got {value!r}") from None
-    if not (np.isfinite(v) and v > 0.0):
-        raise SceneError(f"{name} must be finite and > 0, got {value}")
-    return v
-
-
-def _count(name: str, value: int | None) -> int:
+def check_count(name: str, value: int | None) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise SceneError(f"{name} must be an integer >= 1, got {value!r}")
     check_fits(int(value) * BYTES_PER_GRAIN, f"a scene of {int(value)} grains ({name})")
@@ -44,22 +35,22 @@ def _derived_count(count: float, diameter: float) -> int:
     """The grain count a diameter implies, checked like a given one."""
     if not np.isfinite(count) or count > 1e15:
         raise SceneError(f"diameter {diameter:g} m gives {count:.3g} grains: far too many")
-    return _count(f"grains for diameter {diameter:g} m", max(1, round(count)))
+    return check_count(f"grains for diameter {diameter:g} m", max(1, round(count)))
 
 
-def _polydispersity(value: float) -> float:
+def check_polydispersity(value: float) -> float:
     if not (np.isfinite(value) and 0.0 <= value < 1.0):
         raise SceneError(f"polydispersity must be in [0, 1), got {value}")
     return float(value)
 
 
-def _radii(n: int, d_mean: float, poly: float, rng: np.random.Generator) -> FloatArray:
+def uniform_radii(n: int, d_mean: float, poly: float, rng: np.random.Generator) -> FloatArray:
     """Radii uniform in ``r (1 -+ poly / 2)``, rescaled so their mean is exactly ``d_mean / 2``."""
     u = 1.0 + poly * (rng.random(n) - 0.5)
     return np.asarray(0.5 * d_mean * u / u.mean(), dtype=np.float64)
 
 
-def _grain_volume(dim: int, d_mean: float, poly: float) -> float:
+def mean_grain_volume(dim: int, d_mean: float, poly: float) -> float:
     """Mean grain area (2D) or volume (3D) for radii uniform in ``r (1 -+ poly / 2)``."""
     r = d_mean / 2.0
     if dim == 2:
@@ -75,7 +66,7 @@ def _one_of(n_grains: int | None, diameter: float | None) -> None:
         )
 
 
-def _lattice_size(
+def lattice_size(
     dim: int, n_grains: int | None, diameter: float | None, volume: float, poly: float
 ) -> tuple[int, float]:
     """Grain count and mean diameter of a loose lattice filling ``volume``."""
@@ -83,30 +74,30 @@ def _lattice_size(
     cell = np.sqrt(3.0) / 2.0 if dim == 2 else 1.0  # site volume / spacing^d
     ratio = 1.02 * (1.0 + poly / 2.0)  # spacing / mean diameter
     if n_grains is not None:
-        n = _count("n_grains", n_grains)
+        n = check_count("n_grains", n_grains)
         spacing = (volume / (n * cell)) ** (1.0 / dim)
         return n, float(spacing / ratio)
-    d = _positive("diameter", diameter)  # type: ignore[arg-type]
+    d = positive_number(diameter, "diameter")
     with np.errstate(divide="ignore", over="ignore"):
         n = _derived_count(volume / (cell * (ratio * d) ** dim), d)
     return n, d
 
 
-def _rain_size(
+def rain_size(
     dim: int, n_grains: int | None, diameter: float | None, volume: float, poly: float
 ) -> tuple[int, float]:
     """Grain count and mean diameter of a settled rain packing filling ``volume``."""
     _one_of(n_grains, diameter)
-    unit = _grain_volume(dim, 1.0, poly)  # grain volume for a unit mean diameter
+    unit = mean_grain_volume(dim, 1.0, poly)  # grain volume for a unit mean diameter
     if n_grains is not None:
-        n = _count("n_grains", n_grains)
+        n = check_count("n_grains", n_grains)
         return n, float((RAIN_FRACTION[dim] * volume / (n * unit)) ** (1.0 / dim))
-    d = _positive("diameter", diameter)  # type: ignore[arg-type]
+    d = positive_number(diameter, "diameter")
     with np.errstate(divide="ignore", over="ignore"):
         return _derived_count(RAIN_FRACTION[dim] * volume / (unit * d**dim), d), d
 
 
-def _lattice(
+def lattice_sites(
     dim: int,
     n: int | None,
     horizontal: FloatArray,
@@ -143,7 +134,7 @@ def _lattice(
     return np.stack(coords, axis=1)
 
 
-def _loose_lattice(
+def loose_lattice(
     dim: int, n: int, horizontal: FloatArray, base: float, r_max: float, rng: np.random.Generator
 ) -> FloatArray:
     """``n`` sites of a square/cubic lattice 10 % looser than the largest grain, jittered.
@@ -166,7 +157,7 @@ def _loose_lattice(
     return np.asarray(x + rng.uniform(-amplitude, amplitude, x.shape), dtype=np.float64)
 
 
-def _bed_grains(dim: int, d: float, bed_len: float, chan: float) -> FloatArray:
+def bed_grains(dim: int, d: float, bed_len: float, chan: float) -> FloatArray:
     """Centres of touching grains of diameter ``d`` on the floor over the bed."""
     xs = (np.arange(max(1, int(np.floor(bed_len / d)))) + 0.5) * d
     if dim == 2:
@@ -176,7 +167,7 @@ def _bed_grains(dim: int, d: float, bed_len: float, chan: float) -> FloatArray:
     return np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, d / 2.0)], axis=1)
 
 
-def _deposit(
+def deposit(
     parts_x: list[FloatArray],
     parts_r: list[FloatArray],
     n_fixed: int,
@@ -198,20 +189,20 @@ def _deposit(
     return result.scene.positions
 
 
-def _box_walls(dim: int, box: float) -> list[Wall]:
+def box_walls(dim: int, box: float) -> list[Wall]:
     """A floor and side walls at 0 and ``box`` along every horizontal axis."""
-    walls = [_floor(dim)]
+    walls = [floor_wall(dim)]
     for axis in range(dim - 1):
         e = np.eye(dim)[axis]
         walls += [Wall(np.zeros(dim), e), Wall(box * e, -e)]
     return walls
 
 
-def _floor(dim: int) -> Wall:
+def floor_wall(dim: int) -> Wall:
     up = np.zeros(dim)
     up[-1] = 1.0
     return Wall(np.zeros(dim), up)
 
 
-def _set_groups(scene: Scene, groups: dict[str, slice]) -> None:
+def set_groups(scene: Scene, groups: dict[str, slice]) -> None:
     scene.groups = dict(groups)

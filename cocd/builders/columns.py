@@ -8,22 +8,21 @@ from cocd.builders._common import (
     RAIN_FRACTION,
     FloatArray,
     G,
-    _bed_grains,
-    _box_walls,
-    _count,
-    _deposit,
-    _dim,
-    _grain_volume,
-    _lattice,
-    _lattice_size,
-    _loose_lattice,
-    _polydispersity,
-    _positive,
-    _radii,
-    _rain_size,
-    _set_groups,
+    bed_grains,
+    box_walls,
+    check_count,
+    check_dim,
+    check_polydispersity,
+    deposit,
+    lattice_sites,
+    lattice_size,
+    loose_lattice,
+    mean_grain_volume,
+    rain_size,
+    set_groups,
+    uniform_radii,
 )
-from cocd.checks import checked
+from cocd.checks import checked, nonnegative_number, positive_number
 from cocd.errors import SceneError
 from cocd.scene import Scene, Wall
 
@@ -70,11 +69,10 @@ def column_2d(
     seed : int
         Seed of the radii.
     """
-    n_grains = _count("n_grains", n_grains)
+    n_grains = check_count("n_grains", n_grains)
     if not (width > 0 and aspect > 0):
         raise SceneError(f"width and aspect must be > 0, got {width} and {aspect}")
-    if not 0 <= polydispersity < 1:
-        raise SceneError(f"polydispersity must be in [0, 1), got {polydispersity}")
+    polydispersity = check_polydispersity(polydispersity)
     n = int(n_grains)
     spacing = width * np.sqrt(2.0 * aspect / (np.sqrt(3.0) * n))
     cols = max(1, int(np.floor(width / spacing)))
@@ -113,7 +111,7 @@ def stack(
 
     ``gap`` separates consecutive grains (and the lowest from the wall).
     """
-    n_grains = _count("n_grains", n_grains)
+    n_grains = check_count("n_grains", n_grains)
     if dim not in (2, 3):
         raise SceneError(f"dim must be 2 or 3, got {dim}")
     heights = radius + gap + np.arange(int(n_grains)) * (2.0 * radius + gap)
@@ -155,11 +153,10 @@ def box_3d(
         Inner side of the box; default fits a square base of about
         ``n_grains ** (1/3)`` sites per side.
     """
-    n_grains = _count("n_grains", n_grains)
+    n_grains = check_count("n_grains", n_grains)
     if not diameter > 0:
         raise SceneError(f"diameter must be > 0, got {diameter}")
-    if not 0 <= polydispersity < 1:
-        raise SceneError(f"polydispersity must be in [0, 1), got {polydispersity}")
+    polydispersity = check_polydispersity(polydispersity)
     n = int(n_grains)
     spacing = 1.02 * diameter
     side = max(1, int(np.ceil(n ** (1.0 / 3.0))))
@@ -269,34 +266,33 @@ def column_collapse(
     -------
     Scene
     """
-    dim = _dim(dim)
-    length = _positive("length", length)
-    height = _positive("height", height)
+    dim = check_dim(dim)
+    length = positive_number(length, "length")
+    height = positive_number(height, "height")
     if dim == 2 and width is not None:
         raise SceneError("width is the 3D channel width; leave it None in 2D")
-    chan = _positive("width", 0.20 if width is None else width)
+    chan = positive_number(0.20 if width is None else width, "width")
     if not (np.isfinite(slope_deg) and -90.0 < slope_deg < 90.0):
         raise SceneError(f"slope_deg must be in (-90, 90), got {slope_deg}")
-    poly = _polydispersity(polydispersity)
-    density = _positive("density", density)
+    poly = check_polydispersity(polydispersity)
+    density = positive_number(density, "density")
     if bed not in ("smooth", "rough"):
         raise SceneError(f"bed must be 'smooth' or 'rough', got {bed!r}")
     if packing not in ("lattice", "rain"):
         raise SceneError(f"packing must be 'lattice' or 'rain', got {packing!r}")
-    if not (np.isfinite(erodible_thickness) and erodible_thickness >= 0.0):
-        raise SceneError(f"erodible_thickness must be finite and >= 0, got {erodible_thickness}")
-    bed_len = 4.0 * length if bed_length is None else _positive("bed_length", bed_length)
+    nonnegative_number(erodible_thickness, "erodible_thickness")
+    bed_len = 4.0 * length if bed_length is None else positive_number(bed_length, "bed_length")
     if bed_len < length:
         raise SceneError(f"bed_length {bed_len} is shorter than the column length {length}")
 
     cross = np.array([length, chan]) if dim == 3 else np.array([length])
     volume = float(np.prod(cross)) * height
     if packing == "lattice":
-        n, d_mean = _lattice_size(dim, n_grains, diameter, volume, poly)
+        n, d_mean = lattice_size(dim, n_grains, diameter, volume, poly)
     else:
-        n, d_mean = _rain_size(dim, n_grains, diameter, volume, poly)
+        n, d_mean = rain_size(dim, n_grains, diameter, volume, poly)
     rng = np.random.default_rng(seed)
-    radii = _radii(n, d_mean, poly, rng)
+    radii = uniform_radii(n, d_mean, poly, rng)
     r_max = float(radii.max())
 
     # Bed: fixed grains of the mean diameter, touching, on the floor.
@@ -305,7 +301,7 @@ def column_collapse(
     groups: dict[str, slice] = {}
     base = 0.0
     if bed == "rough":
-        bed_x = _bed_grains(dim, d_mean, bed_len, chan)
+        bed_x = bed_grains(dim, d_mean, bed_len, chan)
         parts_x.append(bed_x)
         parts_r.append(np.full(len(bed_x), d_mean / 2.0))
         base = d_mean
@@ -328,15 +324,15 @@ def column_collapse(
         layer_volume = float(np.prod(horizontal)) * erodible_thickness
         if packing == "lattice":
             spacing = 1.02 * 2.0 * r_max
-            layer_x = _lattice(dim, None, horizontal, base, spacing, erodible_thickness, rng)
-            layer_r = _radii(len(layer_x), d_mean, poly, rng)
+            layer_x = lattice_sites(dim, None, horizontal, base, spacing, erodible_thickness, rng)
+            layer_r = uniform_radii(len(layer_x), d_mean, poly, rng)
         else:
             layer_n = max(
-                1, round(RAIN_FRACTION[dim] * layer_volume / _grain_volume(dim, d_mean, poly))
+                1, round(RAIN_FRACTION[dim] * layer_volume / mean_grain_volume(dim, d_mean, poly))
             )
-            layer_r = _radii(layer_n, d_mean, poly, rng)
-            layer_x = _loose_lattice(dim, layer_n, horizontal, base, float(layer_r.max()), rng)
-            settled = _deposit(
+            layer_r = uniform_radii(layer_n, d_mean, poly, rng)
+            layer_x = loose_lattice(dim, layer_n, horizontal, base, float(layer_r.max()), rng)
+            settled = deposit(
                 [*parts_x, layer_x],
                 [*parts_r, layer_r],
                 n_bed,
@@ -357,16 +353,16 @@ def column_collapse(
 
     if packing == "lattice":
         spacing = 1.02 * 2.0 * r_max
-        column_x = _lattice(dim, n, cross, base, spacing, None, rng)
+        column_x = lattice_sites(dim, n, cross, base, spacing, None, rng)
         parts_x.append(column_x)
         parts_r.append(radii)
     else:
-        column_x = _loose_lattice(dim, n, cross, base, r_max, rng)
+        column_x = loose_lattice(dim, n, cross, base, r_max, rng)
         parts_x.append(column_x)
         parts_r.append(radii)
         # The layer is held still while the column rains onto it: the gate plane
         # would cut through the layer in front of the column.
-        settled = _deposit(
+        settled = deposit(
             parts_x, parts_r, n_below, [*walls, gate], scene_kw, mu_prep, solver, cache
         )
         parts_x = [settled]
@@ -388,7 +384,7 @@ def column_collapse(
         gravity=gravity,
         **scene_kw,  # type: ignore[arg-type]
     )
-    _set_groups(scene, groups)
+    set_groups(scene, groups)
     return scene
 
 
@@ -436,24 +432,24 @@ def static_box(
         Velocities zero, floor at the last coordinate 0, side walls at 0 and
         ``width``; no lid.
     """
-    dim = _dim(dim)
-    n = _count("n_grains", n_grains)
-    d_mean = _positive("diameter", diameter)
-    poly = _polydispersity(polydispersity)
+    dim = check_dim(dim)
+    n = check_count("n_grains", n_grains)
+    d_mean = positive_number(diameter, "diameter")
+    poly = check_polydispersity(polydispersity)
     if width is None:
         side = max(4.0, np.ceil((n / RAIN_FRACTION[dim]) ** (1.0 / dim)))
         width = float(side * d_mean * (np.pi / 6.0 if dim == 3 else np.pi / 4.0) ** (1.0 / dim))
         width = max(width, 4.0 * d_mean)
-    box = _positive("width", width)
+    box = positive_number(width, "width")
     rng = np.random.default_rng(seed)
-    radii = _radii(n, d_mean, poly, rng)
+    radii = uniform_radii(n, d_mean, poly, rng)
     if box < 2.2 * float(radii.max()):
         raise SceneError(f"width {box} is too small for grains of diameter {2 * radii.max():.3g}")
     horizontal = np.full(dim - 1, box)
-    positions = _loose_lattice(dim, n, horizontal, 0.0, float(radii.max()), rng)
-    walls = _box_walls(dim, box)
+    positions = loose_lattice(dim, n, horizontal, 0.0, float(radii.max()), rng)
+    walls = box_walls(dim, box)
     scene_kw = dict(density=density, mu=mu, mu_wall=mu_wall)
-    settled = _deposit([positions], [radii], 0, walls, scene_kw, mu_prep, solver, cache)
+    settled = deposit([positions], [radii], 0, walls, scene_kw, mu_prep, solver, cache)
     return Scene(settled, radii, walls=walls, **scene_kw)  # type: ignore[arg-type]
 
 

@@ -7,9 +7,9 @@ from functools import partial
 
 import numpy as np
 
-from cocd.builders._common import _box_walls, _count, _dim, _floor, _positive
+from cocd.builders._common import box_walls, check_count, check_dim, floor_wall
 from cocd.builders.columns import stack
-from cocd.checks import checked
+from cocd.checks import checked, positive_number
 from cocd.errors import SceneError
 from cocd.scene import Scene, Wall
 
@@ -36,9 +36,9 @@ def heavy_on_light(mass_ratio: float = 1e3, *, dim: int = 2, radius: float = 0.0
     Light grains touch the floor and each other (zero gaps): two in 2D, three
     in a triangle in 3D; the heavy grain sits in their hollow, touching them.
     """
-    dim = _dim(dim)
-    ratio = _positive("mass_ratio", mass_ratio)
-    r = _positive("radius", radius)
+    dim = check_dim(dim)
+    ratio = positive_number(mass_ratio, "mass_ratio")
+    r = positive_number(radius, "radius")
     if dim == 2:
         light = np.array([[-r, r], [r, r]])
         heavy = np.array([[0.0, r + np.sqrt(3.0) * r]])
@@ -50,7 +50,7 @@ def heavy_on_light(mass_ratio: float = 1e3, *, dim: int = 2, radius: float = 0.0
     positions = np.concatenate([light, heavy])
     density = np.full(len(positions), 2500.0)
     density[-1] *= ratio
-    return Scene(positions, r, density=density, walls=[_floor(dim)])
+    return Scene(positions, r, density=density, walls=[floor_wall(dim)])
 
 
 @checked
@@ -62,7 +62,9 @@ def tall_stack(n: int = 50, *, dim: int = 2, radius: float = 0.005, mu: float = 
     methods about ``n`` iterations per digit, and the stack is only
     neutrally stable (any tangential error makes it buckle).
     """
-    return stack(_count("n", n), radius=_positive("radius", radius), dim=_dim(dim), mu=mu)
+    return stack(
+        check_count("n", n), radius=positive_number(radius, "radius"), dim=check_dim(dim), mu=mu
+    )
 
 
 @checked
@@ -78,9 +80,9 @@ def jammed_box(
     interior-point methods see a degenerate problem and first-order methods
     a flat valley. ``mu=0`` and ``mu=1.5`` give the friction extremes.
     """
-    dim = _dim(dim)
-    n = _count("n_grains", n_grains)
-    r = _positive("radius", radius)
+    dim = check_dim(dim)
+    n = check_count("n_grains", n_grains)
+    r = positive_number(radius, "radius")
     d = 2.0 * r
     if dim == 2:
         cols = max(2, int(np.round(np.sqrt(n))))
@@ -95,7 +97,7 @@ def jammed_box(
         k = np.arange(n)
         positions = (np.stack([k % side, (k // side) % side, k // side**2], axis=1) + 0.5) * d
         box = side * d
-    return Scene(positions, r, walls=_box_walls(dim, box), mu=mu)
+    return Scene(positions, r, walls=box_walls(dim, box), mu=mu)
 
 
 @checked
@@ -108,11 +110,11 @@ def wedged_grain(
     narrow V); when ``mu >= tan a`` friction alone can hold the grain, a static
     indeterminate state where the normal forces are not unique.
     """
-    dim = _dim(dim)
+    dim = check_dim(dim)
     a_deg = float(half_angle_deg)
     if not (np.isfinite(a_deg) and 0.0 < a_deg < 90.0):
         raise SceneError(f"half_angle_deg must be in (0, 90), got {half_angle_deg}")
-    r = _positive("radius", radius)
+    r = positive_number(radius, "radius")
     a = np.radians(a_deg)
     height = r / np.sin(a)
     normals = np.zeros((2, dim))
@@ -142,11 +144,11 @@ def fast_impact(
     Stresses: a large, one-step velocity jump (a big ``D/dt``-free right-hand
     side) and, above ``speed_ratio`` ~ 0.5, the contact detection threshold.
     """
-    dim = _dim(dim)
-    ratio = _positive("speed_ratio", speed_ratio)
-    dt = _positive("dt", dt)
-    r = _positive("radius", radius)
-    m = _count("n_targets", n_targets)
+    dim = check_dim(dim)
+    ratio = positive_number(speed_ratio, "speed_ratio")
+    dt = positive_number(dt, "dt")
+    r = positive_number(radius, "radius")
+    m = check_count("n_targets", n_targets)
     positions = np.zeros((m + 1, dim))
     positions[:m, 0] = (np.arange(m) - (m - 1) / 2.0) * 2.0 * r
     positions[:m, -1] = r
@@ -154,7 +156,7 @@ def fast_impact(
     positions[m, -1] = 3.0 * r + 0.25 * r
     velocities = np.zeros((m + 1, dim))
     velocities[m, -1] = -ratio * r / dt
-    return Scene(positions, r, velocities=velocities, walls=[_floor(dim)], mu=mu)
+    return Scene(positions, r, velocities=velocities, walls=[floor_wall(dim)], mu=mu)
 
 
 @checked
@@ -175,9 +177,9 @@ def size_ratio(
     ``ratio ** d``; detection with a neighbour search sized by the largest
     radius; the default ``d_max`` (half the mean radius) is dominated by one size.
     """
-    dim = _dim(dim)
-    k = _positive("ratio", ratio)
-    rs = _positive("small_radius", small_radius)
+    dim = check_dim(dim)
+    k = positive_number(ratio, "ratio")
+    rs = positive_number(small_radius, "small_radius")
     big = k * rs
     if big_on_small:
         m = int(np.ceil(2.0 * big / (2.0 * rs))) + 1  # small grains per side of the centre
@@ -208,7 +210,7 @@ def size_ratio(
         positions = np.concatenate([centre, small])
     radii = np.full(len(positions), rs)
     radii[-1 if big_on_small else 0] = big
-    return Scene(positions, radii, walls=[_floor(dim)], mu=mu)
+    return Scene(positions, radii, walls=[floor_wall(dim)], mu=mu)
 
 
 @checked
@@ -220,33 +222,34 @@ def zero_gap(n_side: int = 6, *, dim: int = 2, mu: float = 0.3) -> Scene:
     and degenerate at once (``D = 0``), redundant constraints, and detection
     on the boundary of the threshold test.
     """
-    dim = _dim(dim)
-    m = _count("n_side", n_side)
+    dim = check_dim(dim)
+    m = check_count("n_side", n_side)
     r = 2.0**-7
     idx = np.indices((m,) * dim).reshape(dim, -1).T
     positions = (2.0 * idx + 1.0) * r
-    return Scene(positions, r, walls=[_floor(dim)], mu=mu)
+    return Scene(positions, r, walls=[floor_wall(dim)], mu=mu)
 
 
 #: Named hard cases for the benchmark harness: name -> builder with no arguments.
-HARD_CASES: dict[str, Callable[[], Scene]] = {
-    "heavy_on_light_1e3": partial(heavy_on_light, 1e3),
-    "heavy_on_light_1e6": partial(heavy_on_light, 1e6),
-    "heavy_on_light_1e6_3d": partial(heavy_on_light, 1e6, dim=3),
-    "tall_stack_50": partial(tall_stack, 50),
-    "tall_stack_50_3d": partial(tall_stack, 50, dim=3),
-    "jammed_box": partial(jammed_box, 200),
-    "jammed_box_3d": partial(jammed_box, 125, dim=3),
-    "jammed_box_mu0": partial(jammed_box, 200, mu=0.0),
-    "jammed_box_mu1.5": partial(jammed_box, 200, mu=1.5),
-    "jammed_box_mu1.5_3d": partial(jammed_box, 125, dim=3, mu=1.5),
-    "wedged_grain": partial(wedged_grain, 10.0),
-    "wedged_grain_3d": partial(wedged_grain, 10.0, dim=3),
-    "fast_impact": partial(fast_impact, 1.0),
-    "fast_impact_3d": partial(fast_impact, 1.0, dim=3),
-    "size_ratio_10": partial(size_ratio, 10.0),
-    "size_ratio_10_3d": partial(size_ratio, 10.0, dim=3),
-    "small_on_big_10": partial(size_ratio, 10.0, big_on_small=False),
-    "zero_gap": partial(zero_gap, 6),
-    "zero_gap_3d": partial(zero_gap, 4, dim=3),
-}
+HARD_CASES: dict[str, Callable[[], Scene]] = {}
+
+
+def _register(name: str, case: partial[Scene], *, in_3d: dict[str, object] | None = None) -> None:
+    """Add ``case`` as ``name``; with ``in_3d`` (the arguments that change, maybe none),
+    add it with ``dim=3`` as ``name_3d`` too."""
+    HARD_CASES[name] = case
+    if in_3d is not None:
+        HARD_CASES[f"{name}_3d"] = partial(case, **{**in_3d, "dim": 3})
+
+
+_register("heavy_on_light_1e3", partial(heavy_on_light, 1e3))
+_register("heavy_on_light_1e6", partial(heavy_on_light, 1e6), in_3d={})
+_register("tall_stack_50", partial(tall_stack, 50), in_3d={})
+_register("jammed_box", partial(jammed_box, n_grains=200), in_3d={"n_grains": 125})
+_register("jammed_box_mu0", partial(jammed_box, n_grains=200, mu=0.0))
+_register("jammed_box_mu1.5", partial(jammed_box, n_grains=200, mu=1.5), in_3d={"n_grains": 125})
+_register("wedged_grain", partial(wedged_grain, 10.0), in_3d={})
+_register("fast_impact", partial(fast_impact, 1.0), in_3d={})
+_register("size_ratio_10", partial(size_ratio, 10.0), in_3d={})
+_register("small_on_big_10", partial(size_ratio, 10.0, big_on_small=False))
+_register("zero_gap", partial(zero_gap, n_side=6), in_3d={"n_side": 4})
