@@ -34,7 +34,7 @@ import cocd
 import solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.states import record_steps
-from cocd.bench.table1 import CHANNEL_WIDTH, D_SEED_3D, DT_3D, MU_3D, SEED_N_3D
+from cocd.studies.table1 import CHANNEL_WIDTH, D_SEED_3D, DT_3D, MU_3D, SEED_N_3D
 from cocd.residuals import ccp_residual
 
 

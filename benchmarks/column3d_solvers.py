@@ -8,7 +8,7 @@ Usage::
 The seed's 3D collapse (Table 1 rows 3-4): ``column_collapse(3, n_grains=N,
 width=0.2, bed="rough", mu=0.3)`` (lattice packing, released at t = 0),
 dt = 1e-2 s, potential contacts below 0.98 mean radii (the threshold that gives
-the seed's 6.75 per sphere at t = 1 s, :data:`cocd.bench.table1.D_SEED_3D`).
+the seed's 6.75 per sphere at t = 1 s, :data:`cocd.studies.table1.D_SEED_3D`).
 The column is advanced by ``apgd`` at ``tol`` to ``--t-start`` (cached, see
 :func:`cocd.bench.states.record_steps`) and the next step's problem is solved
 by every method, warm-started from the previous step's impulses matched by
@@ -40,7 +40,7 @@ import cocd
 import solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.states import record_steps
-from cocd.bench.table1 import CHANNEL_WIDTH, D_SEED_3D, DT_3D, MU_3D
+from cocd.studies.table1 import CHANNEL_WIDTH, D_SEED_3D, DT_3D, MU_3D
 from cocd.residuals import ccp_residual
 
 THRESHOLDS = (1e-2, 1e-3, 1e-4, 1e-5)

@@ -13,7 +13,7 @@ recorded steps, as ``cocd bench table1`` does (2D: ``column_2d(N)``, ``ipm`` at
 1e-6 with ``clarabel-dual`` as fallback, to t = 1 s), counts the potential
 contacts per free grain for fixed thresholds D = 0.25 to 2.5 mean radii, and
 interpolates the D at which the count is the seed's. Writes
-``OUT/seed_contacts.csv``, ``.md`` and ``.meta.json``; ``cocd.bench.table1``
+``OUT/seed_contacts.csv``, ``.md`` and ``.meta.json``; ``cocd.studies.table1``
 uses the D found (``D_SEED_2D``, ``D_SEED_3D``).
 """
 
@@ -28,7 +28,7 @@ import pandas as pd
 
 import cocd
 from cocd.bench.report import write_meta, write_table
-from cocd.bench.table1 import CHANNEL_WIDTH, MU_3D, SEED_ROWS
+from cocd.studies.table1 import CHANNEL_WIDTH, MU_3D, SEED_ROWS
 
 FACTORS = [0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5]
 

@@ -4,7 +4,7 @@
 prints per-step statistics; ``cocd solvers`` lists the backends; ``cocd problem``
 reads and solves external problem files (FCLib HDF5, Siconos text);
 ``cocd bench`` runs the benchmark harness (:mod:`cocd.bench`); ``cocd validate``
-reproduces the seed paper's physics cases (:mod:`cocd.bench.validate`).
+reproduces the seed papers' physics cases (:mod:`cocd.validate`).
 """
 
 from __future__ import annotations
@@ -20,8 +20,7 @@ from rich.console import Console
 from rich.table import Table
 
 import solvers
-from cocd.bench.cli import bench_app
-from cocd.bench.validate_cli import validate_app
+from cocd.bench.cli import bench_app, validate_app
 from cocd.errors import CocdError
 from cocd.exits import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_NOT_SOLVED, fail
 

@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from cocd.bench import hard
 from cocd.builders import HARD_CASES
 from cocd.cli import app
 from cocd.errors import CocdError
+from cocd.studies import hard
 
 TOL = 1e-6
 CASES = ["wedged_grain", "fast_impact", "wedged_grain_3d"]

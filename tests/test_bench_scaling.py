@@ -7,9 +7,10 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from cocd.bench import metrics, scaling
+from cocd.bench import metrics
 from cocd.cli import app
 from cocd.errors import CocdError
+from cocd.studies import scaling
 
 
 @pytest.fixture

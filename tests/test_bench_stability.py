@@ -11,10 +11,10 @@ import pytest
 from typer.testing import CliRunner
 
 import solvers
-from cocd.bench import stability
 from cocd.builders import static_box
 from cocd.cli import app
 from cocd.errors import CocdError, SolverNotFound
+from cocd.studies import stability
 
 N = 30  # the CLI test's box, so that one rain deposition serves every test
 THRESHOLD = 1e-6

@@ -9,10 +9,11 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from cocd.bench import runner, table1
+from cocd.bench import runner
 from cocd.bench.states import StepSequence
 from cocd.cli import app
 from cocd.errors import CocdError
+from cocd.studies import table1
 
 # Scale 0.001 gives columns of 20 and 51 discs (the seed's 1109 and 8308 fall under the
 # 20-disc floor, 20488 rounds to 20, 50772 to 51).

@@ -272,9 +272,8 @@ def test_run_help_lists_the_run_keys_with_brackets_intact():
 
 def test_bench_and_validate_write_outside_the_committed_results_by_default():
     # (tests/test_bench_stability.py runs a study without --out.)
-    from cocd.bench.cli import DEFAULT_OUT
-    from cocd.bench.validate_cli import DEFAULT_OUT as VALIDATE_OUT
+    from cocd.bench.study import DEFAULT_OUT as OUTS
 
-    assert DEFAULT_OUT.parts[0] == VALIDATE_OUT.parts[0] == "cocd-results"
+    assert OUTS["bench"].parts[0] == OUTS["validate"].parts[0] == "cocd-results"
     result = runner.invoke(app, ["sweep", "--help"])
     assert "default cocd-results/sweeps/<name>" in result.output

@@ -16,9 +16,11 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from cocd.bench import validate
 from cocd.cli import app
 from cocd.errors import CocdError
+from cocd.studies import stability
+from cocd.validate import _common as validate
+from cocd.validate import erodible, nscd, timestep
 
 runner = CliRunner()
 
@@ -29,7 +31,7 @@ def _quiet(lines):
 
 def test_smaller_time_steps_converge(tmp_path):
     lines: list[str] = []
-    table = validate.timestep(
+    table = timestep.STUDY(
         n=30,
         dts=[2e-3, 1e-3, 5e-4],
         times=[0.02, 0.06],
@@ -57,7 +59,7 @@ def test_smaller_time_steps_converge(tmp_path):
     assert write_readme(tmp_path).read_text().startswith("# Validation against the seed papers")
     # Run again: every run file is complete, so nothing is stepped, same table.
     again: list[str] = []
-    table2 = validate.timestep(
+    table2 = timestep.STUDY(
         n=30,
         dts=[2e-3, 1e-3, 5e-4],
         times=[0.02, 0.06],
@@ -70,10 +72,10 @@ def test_smaller_time_steps_converge(tmp_path):
 
 
 def test_cocd_and_nscd_profiles_are_close(tmp_path):
-    table = validate.nscd(
+    table = nscd.STUDY(
         n=30,
         times_T=[0.5, 1.0],
-        convex="clarabel",
+        solver="clarabel",
         out=tmp_path,
         progress=_quiet([]),
     )
@@ -88,7 +90,7 @@ def test_cocd_and_nscd_profiles_are_close(tmp_path):
 
 
 def test_an_erodible_layer_lengthens_the_runout(tmp_path):
-    table = validate.erodible(
+    table = erodible.STUDY(
         n=60,
         slopes=[22.0],
         layers_d=[0.0, 3.0],
@@ -109,9 +111,9 @@ def test_an_erodible_layer_lengthens_the_runout(tmp_path):
 
 
 def test_runout_grows_with_the_aspect_ratio(tmp_path):
-    from cocd.bench.runout import scaling
+    from cocd.validate import runout
 
-    table = scaling(
+    table = runout.STUDY(
         aspects=[0.5, 1.0, 2.0, 4.0],
         area=0.004,
         diameter=0.01,
@@ -132,7 +134,7 @@ def test_runout_grows_with_the_aspect_ratio(tmp_path):
 
 
 def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path):
-    from cocd.bench.avalanche import avalanche
+    from cocd.validate.avalanche import STUDY as avalanche
 
     kwargs = dict(n=60, width_d=20, step_deg=1.0, hold=0.1, start_deg=6, solver="clarabel")
     table = avalanche(mus=[0.1, 0.6], out=tmp_path, progress=_quiet([]), **kwargs)
@@ -162,7 +164,7 @@ def test_two_power_laws_are_recovered():
 
 
 def test_a_tighter_tolerance_keeps_a_box_at_rest(tmp_path):
-    table = validate.stability(
+    stability.STUDY(
         solvers="apgd",
         eps_list=[1e-1, 1e-5],
         n=40,
@@ -176,6 +178,7 @@ def test_a_tighter_tolerance_keeps_a_box_at_rest(tmp_path):
         progress=_quiet([]),
     )
     summary = pd.read_csv(tmp_path / "stability_summary.csv").set_index("eps")
+    table = pd.read_csv(tmp_path / "stability_threshold.csv")
     # A loose answer injects motion; a tight one keeps the box still.
     assert summary.loc[1e-5, "at_rest"] and not summary.loc[1e-1, "at_rest"]
     assert summary.loc[1e-5, "max_energy_ratio"] < 1e-3 * summary.loc[1e-1, "max_energy_ratio"]
@@ -200,7 +203,7 @@ def test_profile_error_and_thresholds():
             "at_rest": [False, True, True, False, False],
         }
     )
-    th = validate.stability_thresholds(summary).set_index("solver")
+    th = stability.stability_thresholds(summary).set_index("solver")
     assert th.loc["a", "largest_eps_at_rest"] == 1e-2 and th.loc["a", "consistent"]
     assert math.isnan(th.loc["b", "largest_eps_at_rest"]) and not th.loc["b", "consistent"]
     assert th.loc["b", "unfinished"] == "0.01"
@@ -216,7 +219,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["erodible", "--layers", "0,-3"], "layer thicknesses must be >= 0"),
         (["erodible", "--slopes", "95"], "slopes must be in [0, 90)"),
         (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
-        (["scaling", "--aspects", "1,2"], "at least 4 aspect ratios"),
+        (["runout", "--aspects", "1,2"], "at least 4 aspect ratios"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
     ):
         result = runner.invoke(app, ["validate", *args, *out])

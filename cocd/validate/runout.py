@@ -1,4 +1,4 @@
-"""``cocd validate scaling``: runout and deposit height against the column's aspect ratio.
+"""``cocd validate runout``: runout and deposit height against the column's aspect ratio.
 
 2D columns of the same grains and the same cross-section area ``L0 H0``, with
 aspect ratios ``a = H0 / L0`` from wide to tall, collapse on a rough
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -31,30 +32,47 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from cocd.bench import estimate
-from cocd.bench import validate as base
 from cocd.bench.metrics import fit_two_power_laws
+from cocd.bench.study import option
 from cocd.errors import CocdError
+from cocd.validate import _common as base
+from cocd.validate._common import RunSettings, register
 
-__all__ = ["scaling"]
+__all__ = ["STUDY", "Settings", "run"]
 
 FloatArray = NDArray[np.float64]
 G = 9.81
 
 
-def scaling(
+@dataclass(frozen=True)
+class Settings(RunSettings):
+    """The options of ``cocd validate runout``."""
+
+    aspects: tuple[float, ...] = option(
+        (0.5, 0.9, 1.6, 3.0, 5.5, 10.0), "Aspect ratios H0/L0.", kind="floats"
+    )
+    area: float = option(0.02, "Column cross-section L0 H0 (m^2).")
+    diameter: float = option(0.007, "Mean grain diameter (m).")
+    mu: float = option(0.5, "Friction coefficient (grains and walls).")
+    dt: float = option(1e-3, "Time step (s).")
+    rest_T: float = option(12.0, "Run time in units of sqrt(H0/g).", flag="--rest-T")
+    min_time: float = option(1.0, "Shortest run (s), whatever the aspect ratio.")
+
+
+def run(
     *,
-    aspects: Sequence[float] = (0.5, 0.9, 1.6, 3.0, 5.5, 10.0),
-    area: float = 0.02,
-    diameter: float = 0.007,
-    mu: float = 0.5,
-    dt: float = 1e-3,
-    rest_T: float = 12.0,
-    min_time: float = 1.0,
-    solver: str = "ipm",
-    tol: float = 1e-6,
-    fallback: Sequence[str] = ("clarabel",),
-    out: Path = Path("results/validation"),
-    fresh: bool = False,
+    aspects: Sequence[float],
+    area: float,
+    diameter: float,
+    mu: float,
+    dt: float,
+    rest_T: float,
+    min_time: float,
+    solver: str,
+    tol: float,
+    fallback: Sequence[str],
+    out: Path,
+    fresh: bool,
     progress: Callable[[str], Any] = print,
 ) -> pd.DataFrame:
     """Collapse 2D columns of aspect ratios ``aspects`` and fit the runout and height laws.
@@ -64,14 +82,14 @@ def scaling(
     enough for the runout, and runs for ``max(min_time, rest_T sqrt(H0 / g))``
     seconds. Returns the table written to ``runout_scaling.csv``, one row per ``a``.
     """
-    aspects = sorted(base._positive_list("aspects", aspects))
+    aspects = sorted(base.positive_list("aspects", aspects))
     if len(aspects) < 4:
         raise CocdError("scaling needs at least 4 aspect ratios (two per regime)")
-    area, diameter, dt, rest_T, min_time = base._positive_list(
+    area, diameter, dt, rest_T, min_time = base.positive_list(
         "area, diameter, dt, rest_T, min_time", [area, diameter, dt, rest_T, min_time]
     )
     out = Path(out)
-    frame_dt = base._frame_interval([0.01], [dt])
+    frame_dt = base.frame_interval([0.01], [dt])
     # About 0.8 of the column's area is discs.
     estimate.announce(
         "runout_scaling",
@@ -186,7 +204,7 @@ def scaling(
         "second (0: at rest); `reached_end`: the front came within two diameters of the "
         "bed's end."
     )
-    base._finish(
+    base.finish(
         out,
         "runout_scaling",
         "Runout and height against aspect ratio (seed 001)",
@@ -202,7 +220,7 @@ def scaling(
 def _figure(
     path: Path, table: pd.DataFrame, fit_r: dict[str, float], fit_h: dict[str, float]
 ) -> Path:
-    plt = base._plt()
+    plt = base.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     a = table.a.to_numpy()
     for ax, y, fit, label in (
@@ -222,4 +240,14 @@ def _figure(
     ref = np.geomspace(a.min(), a.max(), 20)
     axes[1].loglog(ref, (fit_h["c_all"]) * ref**0.69, "k:", label="a^0.69 (seed 001)")
     axes[1].legend()
-    return base._save(fig, path)
+    return base.save_figure(fig, path)
+
+
+STUDY = register(
+    "runout",
+    Settings,
+    run,
+    help="Seed 001: runout and deposit height of 2D collapses against the aspect ratio.",
+    outputs=("runout_scaling", "runout_scaling_fit"),
+    aliases=("scaling",),
+)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +35,12 @@ import numpy as np
 import pandas as pd
 
 from cocd.bench import estimate
-from cocd.bench import validate as base
+from cocd.bench.study import option
 from cocd.errors import CocdError, SolverError
+from cocd.validate import _common as base
+from cocd.validate._common import RunSettings, register
 
-__all__ = ["avalanche", "surface_angle"]
+__all__ = ["STUDY", "Settings", "run", "surface_angle"]
 
 G = 9.81
 
@@ -67,23 +70,39 @@ def surface_angle(scene: Any, tilt_deg: float, *, margin_d: float = 3.0) -> floa
     return float(tilt_deg - math.degrees(math.atan(slope)))
 
 
-def avalanche(
+@dataclass(frozen=True)
+class Settings(RunSettings):
+    """The options of ``cocd validate avalanche``."""
+
+    mus: tuple[float, ...] = option((0.2, 0.4, 0.8), "Friction coefficients.", kind="floats")
+    n: int = option(300, "Discs in the layer.")
+    width_d: float = option(50.0, "Box width in diameters.")
+    diameter: float = option(0.005, "Mean grain diameter (m).")
+    start_deg: float = option(4.0, "First tilt (degrees).")
+    step_deg: float = option(0.5, "Tilt step (degrees).")
+    max_deg: float = option(45.0, "Largest tilt (degrees).")
+    hold: float = option(0.15, "Seconds held at each tilt.")
+    dt: float = option(1e-3, "Time step (s).")
+    v_flow: float = option(0.01, "Mean grain speed (m/s) above which the layer flows.")
+
+
+def run(
     *,
-    mus: Sequence[float] = (0.2, 0.4, 0.8),
-    n: int = 300,
-    width_d: float = 50.0,
-    diameter: float = 0.005,
-    start_deg: float = 4.0,
-    step_deg: float = 0.5,
-    max_deg: float = 45.0,
-    hold: float = 0.15,
-    dt: float = 1e-3,
-    v_flow: float = 0.01,
-    solver: str = "ipm",
-    tol: float = 1e-6,
-    fallback: Sequence[str] = ("clarabel",),
-    out: Path = Path("results/validation"),
-    fresh: bool = False,
+    mus: Sequence[float],
+    n: int,
+    width_d: float,
+    diameter: float,
+    start_deg: float,
+    step_deg: float,
+    max_deg: float,
+    hold: float,
+    dt: float,
+    v_flow: float,
+    solver: str,
+    tol: float,
+    fallback: Sequence[str],
+    out: Path,
+    fresh: bool,
     progress: Callable[[str], Any] = print,
 ) -> pd.DataFrame:
     """Avalanche and stop angles of a tilted 2D layer against the friction coefficient.
@@ -96,9 +115,9 @@ def avalanche(
     from cocd.builders import static_box
     from cocd.stepper import Stepper
 
-    mus = sorted(base._positive_list("mus", mus))
-    n = base._positive_int("n", n, 10)
-    width_d, diameter, step_deg, hold, dt, v_flow = base._positive_list(
+    mus = sorted(base.positive_list("mus", mus))
+    n = base.positive_int("n", n, 10)
+    width_d, diameter, step_deg, hold, dt, v_flow = base.positive_list(
         "width_d, diameter, step_deg, hold, dt, v_flow",
         [width_d, diameter, step_deg, hold, dt, v_flow],
     )
@@ -190,7 +209,7 @@ def avalanche(
         "`stop_deg`: its surface's angle to the horizontal then (the angle of repose); "
         "`hysteresis_deg` = avalanche - stop. Every hold is in `avalanche_trace.csv`."
     )
-    base._finish(
+    base.finish(
         out,
         "avalanche",
         "Avalanche and stop angles (seed 001)",
@@ -235,7 +254,7 @@ def _hold(stepper: Any, tilt: float, steps: int, phase: str, trace: list[dict[st
 
 
 def _figure(path: Path, table: pd.DataFrame, trace: pd.DataFrame, threshold: float) -> Path:
-    plt = base._plt()
+    plt = base.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for mu, sub in trace.groupby("mu"):
         for phase, style in (("up", "-o"), ("down", "--s")):
@@ -255,4 +274,12 @@ def _figure(path: Path, table: pd.DataFrame, trace: pd.DataFrame, threshold: flo
     axes[1].set_ylabel("angle (deg)")
     axes[1].legend()
     axes[1].grid(True, alpha=0.3)
-    return base._save(fig, path)
+    return base.save_figure(fig, path)
+
+
+STUDY = register(
+    "avalanche",
+    Settings,
+    run,
+    help="Seed 001: avalanche and stop angles of a tilted layer against grain friction.",
+)

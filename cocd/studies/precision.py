@@ -64,7 +64,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 import solvers as backends
-from cocd.bench import estimate, select_solvers
+from cocd.bench import estimate, select_solvers, study
 from cocd.bench.metrics import (
     SGM_SHIFT,
     performance_profile,
@@ -74,6 +74,7 @@ from cocd.bench.metrics import (
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
+from cocd.bench.study import option
 from cocd.builders import box_3d, column_2d
 from cocd.errors import CocdError
 from cocd.problem import ConicProblem
@@ -246,6 +247,22 @@ def with_cold_runs_as_warm(rows: pd.DataFrame, warm_capable: set[str]) -> pd.Dat
 
 
 # -- the command --------------------------------------------------------------
+@dataclass(frozen=True)
+class Settings:
+    """The options of ``cocd bench precision``."""
+
+    solvers: str | None = study.solvers()
+    tols: tuple[float, ...] = option(
+        (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9),
+        "Comma-separated tolerances swept by each solver.",
+        kind="floats",
+    )
+    n2d: int = option(2000, "Discs in the 2D column.")
+    n3d: int = option(1000, "Spheres in the 3D box.")
+    time_limit: float = study.time_limit(300.0)
+    memory_gb: float | None = study.memory_gb()
+
+
 def run(
     *,
     solvers: str | list[str] | None,
@@ -796,3 +813,15 @@ def _colours(names: Sequence[str]) -> dict[str, Any]:
 
     cmap = colormaps["tab10" if len(names) <= 10 else "tab20"]
     return {name: cmap(k % cmap.N) for k, name in enumerate(names)}
+
+
+STUDY = study.register(
+    study.Study(
+        "precision",
+        "bench",
+        Settings,
+        run,
+        help="Speed against error: work-precision plots, performance profiles, geometric means.",
+        outputs=("precision",),
+    )
+)

@@ -18,7 +18,7 @@ packings per row (``packing``):
   not a granular packing (kept for comparison with earlier tables).
 
 Potential contacts of ``column`` and ``box``: gap below 0.98 mean radii, the
-threshold that gives the seed's 6.75 per sphere (:data:`~cocd.bench.table1.D_SEED_3D`);
+threshold that gives the seed's 6.75 per sphere (:data:`~cocd.studies.table1.D_SEED_3D`);
 ``Nc_per_grain`` is ``Nc`` over the free grains.
 
 Each backend solves ``steps`` problems per N in a :class:`~cocd.bench.runner.Worker`
@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -39,16 +40,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cocd.bench import estimate, select_solvers
+from cocd.bench import estimate, select_solvers, study
 from cocd.bench.metrics import fit_exponent
 from cocd.bench.report import previous_table, write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import record_steps
-from cocd.bench.table1 import CHANNEL_WIDTH, D_SEED_3D, MU_3D
+from cocd.bench.study import option
 from cocd.builders import column_2d, column_collapse, jammed_box, static_box
 from cocd.contacts import detect_contacts
 from cocd.errors import CocdError
 from cocd.problem import assemble
+from cocd.studies.table1 import CHANNEL_WIDTH, D_SEED_3D, MU_3D
 
 __all__ = ["COLUMNS", "PACKINGS_3D", "run"]
 
@@ -119,6 +121,35 @@ def _problems_3d(packing: str, n: int, steps: int, progress: Callable[[str], Non
     problem = assemble(scene, contacts, DT_3D)
     elapsed = time.perf_counter() - start
     return [problem] * steps, [None] * steps, scene.n_free, elapsed
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The options of ``cocd bench scaling``."""
+
+    solvers: str | None = study.solvers()
+    n2d: tuple[int, ...] = option(
+        (1109, 8308, 20488, 50772),
+        "2D column sizes (comma-separated; empty for none).",
+        kind="ints",
+    )
+    n3d: tuple[int, ...] = option(
+        (2000, 8000, 32000), "3D sizes per packing (comma-separated; empty for none).", kind="ints"
+    )
+    packings: tuple[str, ...] = option(
+        ("column", "box", "jammed_box"),
+        "3D packings: column (mid-flow), box (rain-deposited, at rest), jammed_box.",
+        kind="names",
+    )
+    n3d_box: tuple[int, ...] | None = option(
+        None, "Sizes of the box packing, if not those of --n3d.", kind="ints"
+    )
+    resume: bool = option(False, "Keep OUT/scaling.csv's 3D rows; run the others.")
+    steps: int = option(3, "Problems timed per size.")
+    trajectory: str = option("ipm", "Backend that steps the 2D columns.")
+    table1: Path | None = option(None, "Take the 2D rows from this table1.csv instead.")
+    time_limit: float = study.time_limit(900.0)
+    memory_gb: float | None = study.memory_gb()
 
 
 def run(
@@ -398,3 +429,15 @@ def _write(table: pd.DataFrame, out: Path, steps: int, time_limit: float) -> Non
     files.append(png)
     summary = fitted.to_markdown(index=False, floatfmt=".3g") if len(fitted) else ""
     write_meta(out, "scaling", title=title, files=files, summary=summary)
+
+
+STUDY = study.register(
+    study.Study(
+        "scaling",
+        "bench",
+        Settings,
+        run,
+        help="Time per step against N per backend (2D column; 3D column, box, lattice), with fits.",
+        outputs=("scaling",),
+    )
+)

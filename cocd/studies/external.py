@@ -17,19 +17,22 @@ backend that solved them.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from cocd.bench import DEFAULT_SOLVERS, estimate, select_solvers
+from cocd.bench import DEFAULT_SOLVERS, estimate, select_solvers, study
 from cocd.bench.metrics import table_profile
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
+from cocd.bench.study import option
 from cocd.errors import CocdError, ProblemError
 from cocd.external import RECORD_KEYS
 
@@ -58,6 +61,22 @@ def _usable(name: str) -> bool:
         return registry.resolve(name)[0].unavailable_reason() is None
     except CocdError:
         return False
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The options of ``cocd bench external``."""
+
+    folder: Path = option(
+        dataclasses.MISSING,
+        "Folder of FCLib .hdf5 / Siconos .dat problem files.",
+        argument=True,
+    )
+    solvers: str | None = study.solvers()
+    tol: float = option(1e-8, "Tolerance asked of every solver.")
+    coulomb_target: float = option(1e-6, "natural_map_error counted as solving Coulomb.")
+    time_limit: float = study.time_limit(60.0)
+    memory_gb: float | None = study.memory_gb()
 
 
 def run(
@@ -241,3 +260,15 @@ def _write(
             f"`{r.problem}` ({r.status}: {r.note})" for r in skipped.itertuples()
         )
     write_meta(out, "external", title=title, files=files, summary=text)
+
+
+STUDY = study.register(
+    study.Study(
+        "external",
+        "bench",
+        Settings,
+        run,
+        help="Every backend on every problem file of FOLDER: table and performance profiles.",
+        outputs=("external",),
+    )
+)

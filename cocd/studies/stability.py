@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +39,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from cocd.bench import estimate, report, select_solvers
+from cocd.bench import estimate, report, select_solvers, study
+from cocd.bench.study import option
 from cocd.bench.worker import Worker
 from cocd.builders import static_box
 from cocd.errors import CocdError
@@ -90,6 +92,27 @@ GRACE_S = 60.0
 
 #: Seconds between two progress lines inside one run (slow backends on big boxes).
 PROGRESS_S = 30.0
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The options of ``cocd bench stability``."""
+
+    solvers: str | None = study.solvers()
+    eps_list: tuple[float, ...] = option(
+        (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8),
+        "Comma-separated tolerances.",
+        kind="floats",
+    )
+    n: int = option(1000, "Spheres in the box.")
+    dim: int = option(3, "2 or 3.")
+    t_end: float = option(5.0, "Duration in units of sqrt(H/g).")
+    dt: float = option(1e-2, "Time step (s).")
+    threshold: float = option(1e-6, "At rest while Ek / (Ek + Ep) stays below this.")
+    time_limit: float = study.time_limit(600.0)
+    run_budget: float | None = option(
+        None, "Wall seconds per (solver, eps) run; a run that spends them stops, not at rest."
+    )
 
 
 def run(
@@ -216,6 +239,7 @@ def run(
     table = pd.DataFrame(summary, columns=SUMMARY_COLUMNS)
     steps_table = pd.DataFrame(series, columns=SERIES_COLUMNS)
     files = _write(out, table, steps_table, threshold, dim, scene.n_free, height, period, dt)
+    files += _write_thresholds(out, table, threshold, dim, t_end, dt)
     progress(f"stability: wrote {', '.join(str(f) for f in files)}")
     return table
 
@@ -493,6 +517,59 @@ def _write(
     return [*files, out / "stability.meta.json"]
 
 
+def _write_thresholds(
+    out: Path, summary: pd.DataFrame, threshold: float, dim: int, t_end: float, dt: float
+) -> list[Path]:
+    """``stability_threshold``: per backend, the largest tolerance at rest (Fig. 3)."""
+    table = stability_thresholds(summary)
+    parts = []
+    for row in table.itertuples():
+        if math.isnan(row.largest_eps_at_rest):
+            parts.append(f"`{row.solver}` never")
+        else:
+            parts.append(f"`{row.solver}` {row.largest_eps_at_rest:g}")
+    n = summary.N.iloc[0] if len(summary) else 0
+    text = (
+        f"Largest tolerance at which a {dim}D box of {n} grains stays at rest "
+        f"(Ek/E < {threshold:g} over {t_end:g} sqrt(H/g), dt = {dt:g} s): **{', '.join(parts)}**. "
+        "The seed (Fig. 3, Mosek, 110 233 spheres) keeps its box at rest for eps <= 1e-3."
+    )
+    title = "Stability threshold per backend (Fig. 3)"
+    files = report.write_table(
+        out,
+        "stability_threshold",
+        table,
+        title=title,
+        intro="`largest_eps_at_rest`: the largest tolerance whose run stayed at rest; "
+        "`consistent`: every smaller tolerance that ran to its end was at rest too; "
+        "`unfinished`: tolerances stopped by their time budget or a failed step.",
+    )
+    report.write_meta(out, "stability_threshold", title=title, files=files, summary=text)
+    return [*files, out / "stability_threshold.meta.json"]
+
+
+def stability_thresholds(summary: pd.DataFrame) -> pd.DataFrame:
+    """Per backend of a stability summary: the largest tolerance at rest."""
+    rows = []
+    for solver, sub in summary.groupby("solver", sort=False):
+        sub = sub.sort_values("eps", ascending=False)
+        done = sub[sub.steps_done == sub.steps_asked]
+        rest = done[done.at_rest.astype(bool)]
+        largest = float(rest.eps.max()) if len(rest) else math.nan
+        below = done[done.eps <= largest] if len(rest) else done.iloc[0:0]
+        rows.append(
+            {
+                "solver": solver,
+                "largest_eps_at_rest": largest,
+                "consistent": bool(below.at_rest.astype(bool).all()) if len(rest) else False,
+                "unfinished": ", ".join(
+                    f"{e:g}" for e in sub.eps[sub.steps_done < sub.steps_asked]
+                ),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
 def _verdicts(table: pd.DataFrame, threshold: float) -> str:
     """A Markdown pivot: solver x eps, 'yes' / 'no' (max ratio) or 'failed at step k'."""
     if table.empty:
@@ -573,3 +650,17 @@ def _plot(
     fig.tight_layout(rect=(0.0, 0.0, 0.9, 1.0))
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+STUDY = study.register(
+    study.Study(
+        "stability",
+        "bench",
+        Settings,
+        run,
+        help="The seed's Fig. 3: does a box at rest stay at rest, for each solver and eps, "
+        "and the largest eps that keeps it at rest.",
+        outputs=("stability_summary", "stability_threshold"),
+        aliases=("validate:stability",),
+    )
+)

@@ -34,6 +34,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -42,10 +43,11 @@ import numpy as np
 import pandas as pd
 
 import solvers
-from cocd.bench import estimate, select_solvers
+from cocd.bench import estimate, select_solvers, study
 from cocd.bench.report import previous_table, write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, cache_path, record_steps
+from cocd.bench.study import option
 from cocd.builders import column_2d, column_collapse
 from cocd.errors import CocdError
 from cocd.scene import Scene
@@ -126,6 +128,29 @@ SEED_ROWS: list[dict[str, Any]] = [
 _RETURNED = ("optimal", "inaccurate", "max_iter")
 #: Statuses after which the rest of a case is not worth the time.
 _FAILED = ("error", "time_limit", "infeasible")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The options of ``cocd bench table1``."""
+
+    solvers: str | None = study.solvers()
+    scale: float = option(0.1, "Multiply the seed's grain counts by this (0 < S <= 1).")
+    scale_3d: float | None = option(None, "The 3D case's own scale (default: --scale).")
+    cases: tuple[str, ...] = option(("2d", "3d"), "Which halves: 2d, 3d or 2d,3d.", kind="names")
+    steps: int = option(10, "Steps averaged per row.")
+    time_limit: float = study.time_limit(600.0)
+    memory_gb: float | None = study.memory_gb()
+    resume: bool = option(False, "Keep the rows already in OUT/table1.csv; solve only the others.")
+    row_budget: float | None = option(
+        None, "Seconds of solving after which a row stops (slow backends)."
+    )
+    trajectory_solver: str | None = option(
+        None,
+        "Backend that steps each column to the recorded steps (default: clarabel, "
+        "clarabel-dual in 3D).",
+        flag="--trajectory",
+    )
 
 
 def run(
@@ -756,3 +781,15 @@ def _finite(value: object) -> bool:
 
 def _fmt(value: object, spec: str = ".0f") -> str:
     return format(float(value), spec) if _finite(value) else "-"  # type: ignore[arg-type]
+
+
+STUDY = study.register(
+    study.Study(
+        "table1",
+        "bench",
+        Settings,
+        run,
+        help="The seed's Table 1: iterations and time per step against N, dt and eps.",
+        outputs=("table1", "table1_summary"),
+    )
+)

@@ -52,6 +52,7 @@ import math
 import re
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,9 +60,10 @@ import numpy as np
 import pandas as pd
 
 import solvers
-from cocd.bench import estimate, select_solvers
+from cocd.bench import estimate, select_solvers, study
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import default_memory_gb
+from cocd.bench.study import option
 from cocd.bench.worker import Worker, short
 from cocd.builders import HARD_CASES
 from cocd.errors import CocdError
@@ -396,6 +398,20 @@ def _heatmap(table: pd.DataFrame, path: Path, tol: float) -> Path:
 
 
 # -- the command ---------------------------------------------------------------
+@dataclass(frozen=True)
+class Settings:
+    """The options of ``cocd bench hard``."""
+
+    solvers: str | None = study.solvers()
+    cases: tuple[str, ...] | None = option(
+        None, "Comma-separated hard cases (default: all).", kind="names"
+    )
+    steps: int = option(5, "Steps per case.")
+    tol: float = option(1e-6, "Tolerance asked of every solver.")
+    time_limit: float = study.time_limit(120.0)
+    memory_gb: float | None = study.memory_gb()
+
+
 def run(
     *,
     solvers: str | list[str] | None,
@@ -511,3 +527,15 @@ def run(
     files.append(_heatmap(table, out / "hard.png", float(tol)))
     write_meta(out, "hard", title=title, files=files, summary=matrix)
     return table
+
+
+STUDY = study.register(
+    study.Study(
+        "hard",
+        "bench",
+        Settings,
+        run,
+        help="Every solver on every hard case: status, iterations, time, residuals, energy drift.",
+        outputs=("hard",),
+    )
+)

@@ -1,0 +1,311 @@
+"""Studies: each measurement of the harness declared once, its command generated.
+
+A study is a run function and a settings dataclass whose fields are its
+options. :func:`register` records it under its group (``bench`` or
+``validate``); :func:`command` turns it into a Typer command whose options
+come from the fields, so an option's name, default and help are written in
+one place. The command runs the study, turns a :class:`~cocd.errors.CocdError`
+into a one-line error, and rebuilds ``OUT/README.md`` from the result files'
+records.
+
+A field's metadata, set by :func:`option`, says how the command line spells it:
+``flag`` (default ``--field-name``), ``help``, ``kind`` for comma-separated
+lists (``"floats"``: numbers > 0; ``"numbers"``: any finite numbers;
+``"ints"``: integers >= 1; ``"names"``: words) and ``argument`` for a
+positional argument.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import typer
+
+from cocd.errors import CocdError
+from cocd.exits import fail
+
+__all__ = [
+    "Study",
+    "command",
+    "memory_gb",
+    "option",
+    "parse_list",
+    "register",
+    "solvers",
+    "studies",
+    "time_limit",
+]
+
+Kind = Literal["floats", "numbers", "ints", "names"]
+Group = Literal["bench", "validate"]
+
+#: Where each group writes unless ``--out`` says otherwise (not the committed results/).
+DEFAULT_OUT: dict[str, Path] = {
+    "bench": Path("cocd-results"),
+    "validate": Path("cocd-results/validation"),
+}
+#: The heading of ``OUT/README.md`` per group.
+HEADINGS: dict[str, str | None] = {
+    "bench": None,
+    "validate": "Validation against the seed papers",
+}
+
+
+def option(
+    default: Any,
+    help: str,
+    *,
+    flag: str | None = None,
+    kind: Kind | None = None,
+    argument: bool = False,
+) -> Any:
+    """A settings field with what the command line needs to know of it."""
+    meta = {"help": help, "flag": flag, "kind": kind, "argument": argument}
+    if isinstance(default, list | tuple):
+        default = tuple(default)
+    if default is dataclasses.MISSING:
+        return field(metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def solvers(default: str | None = None, help: str = "") -> Any:
+    """The ``--solvers`` option of a study."""
+    return option(default, help or "Comma-separated backends (default: the harness's set).")
+
+
+def time_limit(default: float) -> Any:
+    """The ``--time-limit`` option: seconds per solve."""
+    return option(default, "Seconds per solve before a backend is stopped.")
+
+
+def memory_gb() -> Any:
+    """The ``--memory-gb`` option: the memory cap of a backend's child process."""
+    return option(None, "Memory cap per backend process (GiB; default 3/4 of RAM).")
+
+
+@dataclass(frozen=True)
+class Study:
+    """One measurement of the harness.
+
+    Attributes
+    ----------
+    name : str
+        The command's name (``cocd <group> <name>``).
+    group : {"bench", "validate"}
+        ``bench`` compares backends; ``validate`` reproduces a seed paper's physics.
+    settings : type
+        A dataclass of the options; :func:`option` declares each field.
+    run : callable
+        Called with the settings' fields as keywords and ``out`` (a Path).
+    outputs : tuple of str
+        The names of the tables it writes under ``out`` (``<name>.csv``,
+        ``<name>.md``, ``<name>.meta.json``).
+    help : str
+        One line for ``--help``; the run function's first docstring line by default.
+    aliases : tuple of str
+        Older names of the command, kept hidden and marked deprecated.
+    """
+
+    name: str
+    group: Group
+    settings: type
+    run: Callable[..., object]
+    outputs: tuple[str, ...] = ()
+    help: str = ""
+    aliases: tuple[str, ...] = ()
+
+    def summary(self) -> str:
+        if self.help:
+            return self.help
+        doc = inspect.getdoc(self.run) or ""
+        return doc.split("\n\n")[0].replace("\n", " ")
+
+    def __call__(self, settings: Any = None, *, out: Path | None = None, **changes: Any) -> Any:
+        """Run with ``settings`` (default: the declared defaults) changed by ``changes``.
+
+        Keywords that are not settings (``progress``, ...) go to the run function as
+        they are.
+        """
+        settings = self.settings() if settings is None else settings
+        names = {f.name for f in dataclasses.fields(settings)}
+        extra = {k: v for k, v in changes.items() if k not in names}
+        settings = dataclasses.replace(settings, **{k: v for k, v in changes.items() if k in names})
+        where = Path(out) if out is not None else DEFAULT_OUT[self.group]
+        result = self.run(**_fields(settings), out=where, **extra)
+        from cocd.bench.report import write_readme
+
+        write_readme(where, heading=HEADINGS[self.group])
+        return result
+
+
+_STUDIES: dict[tuple[str, str], Study] = {}
+
+#: The packages whose modules register studies; :func:`studies` imports each module.
+PACKAGES = ("cocd.studies", "cocd.validate")
+#: The entry-point group under which other packages name modules that register studies.
+ENTRY_POINTS = "cocd.studies"
+
+
+def register(study: Study) -> Study:
+    """Record ``study``; a second study of the same group and name is an error."""
+    if not dataclasses.is_dataclass(study.settings):
+        raise TypeError(f"study {study.name}: settings must be a dataclass")
+    key = (study.group, study.name)
+    if key in _STUDIES and _STUDIES[key] is not study:
+        raise ValueError(f"a {study.group} study named {study.name!r} is already registered")
+    _STUDIES[key] = study
+    return study
+
+
+def studies(group: str | None = None) -> list[Study]:
+    """The registered studies (of ``group``), in the order their modules were imported.
+
+    Imports every module of :data:`PACKAGES` and those named under the entry-point
+    group :data:`ENTRY_POINTS`, so a new study is one module and its
+    :func:`register` call.
+    """
+    import importlib
+    import pkgutil
+    from importlib.metadata import entry_points
+
+    for package in PACKAGES:
+        path = importlib.import_module(package).__path__
+        for info in sorted(pkgutil.iter_modules(path), key=lambda m: m.name):
+            if not info.name.startswith("_"):
+                importlib.import_module(f"{package}.{info.name}")
+    for entry in entry_points(group=ENTRY_POINTS):
+        entry.load()
+    return [s for (g, _), s in _STUDIES.items() if group is None or g == group]
+
+
+def parse_list(text: str, kind: Kind, what: str) -> tuple[Any, ...]:
+    """Comma-separated values of ``kind``; a one-line error naming ``what`` otherwise."""
+    words = [w.strip() for w in text.split(",") if w.strip()]
+    if kind == "names":
+        return tuple(words)
+    if kind == "ints":
+        try:
+            ints = tuple(int(w) for w in words)
+        except ValueError:
+            raise CocdError(f"{what} must be comma-separated integers, got {text!r}") from None
+        if any(v < 1 for v in ints):
+            raise CocdError(f"{what} must be positive integers, got {text!r}")
+        return ints
+    try:
+        values = tuple(float(w) for w in words)
+    except ValueError:
+        raise CocdError(f"{what} must be comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise CocdError(f"{what} is empty")
+    if kind == "floats" and any(not (v > 0) for v in values):
+        raise CocdError(f"{what} must be positive numbers, got {text!r}")
+    if kind == "numbers" and not all(math.isfinite(v) for v in values):
+        raise CocdError(f"{what} must be finite numbers, got {text!r}")
+    return values
+
+
+def _fields(settings: Any) -> dict[str, Any]:
+    values = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}
+
+
+def _flag(f: dataclasses.Field) -> str:
+    return f.metadata.get("flag") or "--" + f.name.replace("_", "-")
+
+
+def _joined(values: Sequence[Any]) -> str:
+    return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+
+
+def _parameter(f: dataclasses.Field, hints: dict[str, Any]) -> inspect.Parameter:
+    meta = f.metadata
+    kind = meta.get("kind")
+    default: Any = f.default
+    if kind is not None:
+        kind_type: Any = str | None if default is None else str
+        default = None if default is None else _joined(default)
+    else:
+        kind_type = hints[f.name]
+    info = (
+        typer.Argument(help=meta["help"])
+        if meta.get("argument")
+        else typer.Option(_flag(f), help=meta["help"])
+    )
+    param_default = inspect.Parameter.empty if default is dataclasses.MISSING else default
+    return inspect.Parameter(
+        f.name,
+        inspect.Parameter.KEYWORD_ONLY,
+        default=param_default,
+        annotation=Annotated[kind_type, info],
+    )
+
+
+def _out_help(default: Path) -> str:
+    committed = Path("results") / default.relative_to(DEFAULT_OUT["bench"])
+    return f"Output directory (the committed tables: --out {committed})."
+
+
+def command(study: Study, *, name: str | None = None, out: Path | None = None) -> Callable:
+    """A Typer command function for ``study``: its options are the settings' fields."""
+    import typing
+
+    hints = typing.get_type_hints(study.settings)
+    fields = dataclasses.fields(study.settings)
+    out_default = out or DEFAULT_OUT[study.group]
+    params = [_parameter(f, hints) for f in fields]
+    params.append(
+        inspect.Parameter(
+            "out",
+            inspect.Parameter.KEYWORD_ONLY,
+            default=out_default,
+            annotation=Annotated[Path, typer.Option("--out", help=_out_help(out_default))],
+        )
+    )
+
+    def run_command(**kwargs: Any) -> None:
+        where = Path(kwargs.pop("out"))
+        try:
+            values = {}
+            for f in fields:
+                value = kwargs[f.name]
+                kind = f.metadata.get("kind")
+                if kind is not None and value is not None:
+                    value = parse_list(value, kind, _flag(f))
+                values[f.name] = value
+            study(study.settings(**values), out=where)
+            typer.echo(f"wrote {where / 'README.md'}")
+        except CocdError as exc:
+            fail(exc)
+
+    run_command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+    run_command.__annotations__ = {p.name: p.annotation for p in params}
+    run_command.__name__ = (name or study.name).replace("-", "_")
+    run_command.__doc__ = study.summary()
+    return run_command
+
+
+def add_commands(app: typer.Typer, group: Group) -> None:
+    """Add a command to ``app`` for each study of ``group``, and the hidden old names.
+
+    An alias ``"name"`` is an old name in the study's own group; ``"group:name"``
+    one in another group (it writes where that group writes by default).
+    """
+    for study in studies():
+        if study.group == group:
+            app.command(study.name, help=study.summary())(command(study))
+        for alias in study.aliases:
+            where, _, name = alias.rpartition(":")
+            if (where or study.group) != group:
+                continue
+            app.command(
+                name,
+                help=f"Old name of `cocd {study.group} {study.name}`.",
+                hidden=True,
+                deprecated=True,
+            )(command(study, name=name, out=DEFAULT_OUT[group]))

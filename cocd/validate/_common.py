@@ -1,0 +1,354 @@
+"""What the seed validations share: running and measuring a column collapse.
+
+Each case of ``cocd validate`` runs a few column collapses with
+:func:`cocd.runs.run`, one run file per simulation under
+``<out>/runs/<case>/<label>/run.h5``, then measures the saved frames and
+writes a table, figures and ``<case>.meta.json`` under ``<out>``, whose
+``README.md`` is rebuilt from them.
+
+Every simulation is resumable: a case run again continues each run file
+from its last frame (a run killed half-way loses at most one frame
+interval), and a finished run is only measured again. ``fresh=True``
+starts them over. A failed step stops the case with a :class:`CocdError`
+naming it; the run files keep what was computed.
+
+Profiles are the free-surface height of the main connected mass above the
+bed's top (:func:`cocd.measure.mass_profile`), on bins one mean diameter
+wide, zero where there is no grain. Fronts are those of the grains that
+started in the column (:func:`cocd.measure.front_position`), measured from
+the back wall; on an erodible bed the layer's grains do not count, so the
+front is the column's, as in the experiments the seed compares with.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike, NDArray
+
+from cocd.bench import report
+from cocd.bench.study import Study, option
+from cocd.bench.study import register as study_register
+from cocd.errors import CocdError
+
+FloatArray = NDArray[np.float64]
+
+#: Seconds between two progress lines of one simulation.
+PROGRESS_S = 20.0
+
+#: Bins averaged into one for the coarse-grained profile errors (``*_4d`` columns):
+#: one-diameter bins see single grains, four-diameter bins the mass.
+COARSE = 4
+
+#: Fraction of an erodible run, at its end, over which the front is averaged for
+#: its runout.
+RUNOUT_WINDOW = 0.1
+
+#: Relative tolerance when a requested time is matched to a saved frame (in steps).
+_FRAME_MATCH = 0.5
+
+
+# -- running and measuring one collapse -------------------------------------------------
+@dataclass(frozen=True)
+class CollapseSeries:
+    """What is measured on one simulated collapse.
+
+    ``times``: the saved frames' times (s); ``front``: the flow's front at
+    those times (:func:`cocd.measure.surface_front`), from the back wall (m);
+    ``profiles``: the height above the bed per bin at the asked times (rows), on
+    ``x_edges``; ``stats``: the run's per-step statistics (:attr:`compute_s`
+    sums their detection, set-up and solve times); ``n_grains``: the column's
+    grains; ``d_mean``: their mean diameter (m).
+    """
+
+    label: str
+    path: Path
+    times: FloatArray
+    front: FloatArray
+    profile_times: FloatArray
+    profiles: FloatArray
+    x_edges: FloatArray
+    stats: pd.DataFrame
+    n_grains: int
+    d_mean: float
+
+    @property
+    def steps(self) -> int:
+        return len(self.stats)
+
+    @property
+    def penetration_max(self) -> float:
+        """Largest end-of-step overlap of the run, relative to the smaller radius (NaN: a
+        run file written before overlaps were measured)."""
+        values = self.stats.penetration.to_numpy(dtype=float)
+        return float(np.max(values)) if values.size and np.all(np.isfinite(values)) else np.nan
+
+    @property
+    def compute_s(self) -> float:
+        """Seconds of detection, set-up and solving summed over the steps."""
+        s = self.stats
+        return float((s.detect_time + s.setup_time + s.solve_time).sum())
+
+
+def collapse_series(
+    folder: Path,
+    params: dict[str, Any],
+    *,
+    label: str,
+    dt: float,
+    until: float,
+    frame_dt: float,
+    solver: str,
+    tol: float,
+    profile_times: Sequence[float] = (),
+    max_iter: int | None = None,
+    fallback: Sequence[str] = (),
+    solver_options: dict[str, Any] | None = None,
+    bin_width: float | None = None,
+    x_max: float | None = None,
+    fresh: bool = False,
+    progress: Callable[[str], Any] = print,
+) -> CollapseSeries:
+    """Run (or resume, or just read) one ``column_collapse`` and measure it.
+
+    ``params`` are :func:`cocd.builders.column_collapse`'s arguments. Frames
+    are saved every ``frame_dt`` seconds (a whole number of steps). Profiles
+    are measured at ``profile_times``, each of which must fall on a saved
+    frame; bins are ``bin_width`` wide (default: one mean diameter) from the
+    back wall to ``x_max`` (default: the bed's end).
+    """
+    from cocd.config import RunConfig
+    from cocd.errors import SolverError
+    from cocd.runs import RUN_FILE, Progress, run
+
+    every = max(1, round(frame_dt / dt))
+    if abs(every * dt - frame_dt) > 1e-9 * frame_dt:
+        raise CocdError(f"frame interval {frame_dt:g} s is not a whole number of steps of {dt:g}")
+    run_table: dict[str, Any] = {
+        "dt": dt,
+        "until": until,
+        "solver": solver,
+        "tol": tol,
+        "frame_every": every,
+        "fallback": list(fallback),
+        "solver_options": dict(solver_options or {}),
+    }
+    if max_iter is not None:
+        run_table["max_iter"] = max_iter
+    config = RunConfig.model_validate(
+        {"builder": "column_collapse", "params": params, "run": run_table}
+    )
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    last = [time.perf_counter()]
+
+    def tick(p: Progress) -> None:
+        now = time.perf_counter()
+        if now - last[0] >= PROGRESS_S or p.done == p.total:
+            last[0] = now
+            rec = p.record
+            progress(
+                f"  {label}: step {p.done}/{p.total}  t {rec.t:.4f} s  Nc {rec.nc}  "
+                f"it {rec.iterations}  ({p.elapsed:.0f} s this call)"
+            )
+
+    try:
+        summary = run(
+            config, folder, resume=not fresh, force=fresh, progress=tick, source=str(folder)
+        )
+    except SolverError as exc:
+        raise CocdError(
+            f"{label}: {exc}; the run file {folder / RUN_FILE} keeps the frames before it "
+            "(run the case again to resume, or change the solver or tolerance)"
+        ) from None
+    if summary.resumed_from_step and summary.steps > summary.resumed_from_step:
+        progress(f"  {label}: resumed at step {summary.resumed_from_step}")
+    return measure_series(summary.path, label, profile_times, bin_width, x_max, dt)
+
+
+def measure_series(
+    path: Path,
+    label: str,
+    profile_times: Sequence[float],
+    bin_width: float | None,
+    x_max: float | None,
+    dt: float,
+) -> CollapseSeries:
+    from cocd.io.runfile import RunFile
+    from cocd.measure import bed_surface, mass_profile, surface_front
+
+    with RunFile(path) as rf:
+        scene0 = rf.scene(0)
+        column = np.zeros(rf.n_grains, dtype=bool)
+        column[scene0.groups["column"]] = True
+        r = rf.radii
+        d_mean = 2.0 * float(r[column].mean())
+        bed = scene0.groups.get("bed", slice(0, 0))
+        base = float(np.max(scene0.positions[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
+        free = ~scene0.fixed
+        if x_max is None:
+            x_max = float(np.max(scene0.positions[:, 0] + r))
+        width = d_mean if bin_width is None else bin_width
+        edges = np.arange(0.0, x_max + width, width)
+        surface = bed_surface(scene0, edges)  # the erodible layer's top, else the bed's
+        times = rf.times.copy()
+        front = np.array(
+            [
+                surface_front(rf.frame(k).positions, r, x_bins=edges, surface=surface, mask=free)
+                for k in range(rf.n_frames)
+            ]
+        )
+        profiles = []
+        for t in profile_times:
+            k = int(np.argmin(np.abs(times - t)))
+            if abs(times[k] - t) > _FRAME_MATCH * dt:
+                raise CocdError(f"{label}: no frame saved at t = {t:g} s in {path}")
+            prof = mass_profile(rf.frame(k).positions, r, x_bins=edges, mask=free)
+            profiles.append(np.nan_to_num(prof.height - base, nan=0.0).clip(min=0.0))
+        stats = rf.stats()
+        n_grains = int(column.sum())
+    return CollapseSeries(
+        label=label,
+        path=path,
+        times=times,
+        front=front,
+        profile_times=np.asarray(profile_times, dtype=float),
+        profiles=np.asarray(profiles).reshape(len(profile_times), len(edges) - 1),
+        x_edges=edges,
+        stats=stats,
+        n_grains=n_grains,
+        d_mean=d_mean,
+    )
+
+
+def profile_error(h: ArrayLike, reference: ArrayLike) -> float:
+    """Relative profile error ``||h - h_ref|| / ||h_ref||`` (2-norm over the bins)."""
+    h = np.asarray(h, dtype=float)
+    ref = np.asarray(reference, dtype=float)
+    if h.shape != ref.shape:
+        raise CocdError(f"profiles on different bins: {h.shape} and {ref.shape}")
+    norm = float(np.linalg.norm(ref))
+    if norm == 0.0:
+        raise CocdError("the reference profile is empty")
+    return float(np.linalg.norm(h - ref) / norm)
+
+
+def coarsen(h: ArrayLike, k: int) -> FloatArray:
+    """A profile on bins ``k`` times wider: the mean of each run of ``k`` bins (the last
+    run padded with zeros)."""
+    h = np.asarray(h, dtype=float)
+    pad = (-h.size) % k
+    return np.asarray(np.concatenate([h, np.zeros(pad)]).reshape(-1, k).mean(axis=1))
+
+
+def base_params(n: int, mu: float, slope: float = 0.0, **extra: Any) -> dict[str, Any]:
+    return {"dim": 2, "n_grains": int(n), "bed": "rough", "mu": mu, "slope_deg": slope, **extra}
+
+
+def positive_int(name: str, value: int, low: int = 1) -> int:
+    if int(value) != value or value < low:
+        raise CocdError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def positive_list(name: str, values: Sequence[float]) -> list[float]:
+    out = [float(v) for v in values]
+    if not out or any(not (math.isfinite(v) and v > 0.0) for v in out):
+        raise CocdError(f"{name} must be positive numbers, got {list(values)!r}")
+    return out
+
+
+def pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig: Any, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    pyplot().close(fig)
+    return path
+
+
+def finish(
+    out: Path,
+    name: str,
+    title: str,
+    table: pd.DataFrame,
+    intro: str,
+    summary: str,
+    figures: list[Path],
+    progress: Callable[[str], Any],
+) -> None:
+    files = report.write_table(out, name, table, title=title, intro=intro)
+    report.write_meta(out, name, title=title, files=[*files, *figures], summary=summary)
+    readme = report.write_readme(out, heading="Validation against the seed papers")
+    progress(f"{name}: wrote {', '.join(str(f) for f in [*files, *figures])}; {readme}")
+
+
+def fmt(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def frame_interval(times: Sequence[float], dts: Sequence[float]) -> float:
+    """A frame interval on which every asked time and every step falls: 0.01 s or finer."""
+    for frame_dt in (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 1e-4):
+        ok = all(abs(t / frame_dt - round(t / frame_dt)) < 1e-6 for t in times)
+        ok = ok and all(abs(frame_dt / d - round(frame_dt / d)) < 1e-6 for d in dts)
+        ok = ok and all(frame_dt >= d - 1e-15 for d in dts)
+        if ok:
+            return frame_dt
+    raise CocdError(
+        f"the times {list(times)} do not fall on whole numbers of the steps {list(dts)}"
+    )
+
+
+def profile_figure(path: Path, series: list[CollapseSeries], labels: list[str]) -> Path:
+    plt = pyplot()
+    times = series[0].profile_times
+    fig, axes = plt.subplots(1, len(times), figsize=(4.2 * len(times), 3.4), squeeze=False)
+    reach = max(
+        float(s.x_edges[np.nonzero(s.profiles.max(axis=0) > 0)[0].max() + 1])
+        for s in series
+        if s.profiles.max() > 0
+    )
+    for k, (ax, t) in enumerate(zip(axes[0], times, strict=True)):
+        for s, lab in zip(series, labels, strict=True):
+            centres = 0.5 * (s.x_edges[:-1] + s.x_edges[1:])
+            ax.plot(centres, s.profiles[k], label=lab, lw=1.2)
+        ax.set_title(f"t = {t:g} s")
+        ax.set_xlim(0.0, 1.05 * reach)
+        ax.set_xlabel("x (m)")
+        ax.grid(True, alpha=0.3)
+    axes[0][0].set_ylabel("h (m)")
+    axes[0][0].legend(fontsize=8)
+    return save_figure(fig, path)
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """The options every seed validation has: how its simulations are solved and resumed."""
+
+    solver: str = option("ipm", "Convex backend of the COCD runs.")
+    tol: float = option(1e-6, "Tolerance of the convex backend.")
+    fallback: tuple[str, ...] = option(
+        ("clarabel",), "Backends tried when a step fails (comma-separated).", kind="names"
+    )
+    fresh: bool = option(False, "Start the runs over instead of resuming them.")
+
+
+def register(name: str, settings: type, run: Callable[..., Any], **kw: Any) -> Study:
+    """Record a seed validation as a ``cocd validate`` study."""
+    kw.setdefault("outputs", (name,))
+    return study_register(Study(name, "validate", settings, run, **kw))
