@@ -21,11 +21,12 @@ from numpy.typing import NDArray
 import solvers
 from cocd.contacts import SKIN_FACTOR, ContactSet, Penetration, detect_contacts, penetration
 from cocd.coupling import grain_impulses, resolve_loads
-from cocd.errors import PenetrationError, PenetrationWarning, ProblemError, SolverError
+from cocd.errors import PenetrationError, PenetrationWarning, ProblemError
 from cocd.measure import kinetic_energy, potential_energy
 from cocd.problem import ConicProblem, assemble, scatter_velocity
-from cocd.residuals import Residuals, residuals
+from cocd.residuals import Residuals
 from cocd.scene import DEFAULT_OVERLAP_TOL, Scene
+from cocd.step_solve import Acceptance, match_impulses, solve_chain, warm_start
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -407,37 +408,20 @@ class Stepper:
         problem = assemble(scene, contacts, self.dt, forces=forces, torques=torques)
         detect_time = time.perf_counter() - start
 
-        p0 = None
-        if self.warm_start and self.previous is not None:
-            p0 = match_impulses(*self.previous, contacts.keys)
-            if p0.shape[1] != problem.contact_dim:
-                p0 = None
+        previous = self.previous if self.warm_start else None
+        p0 = warm_start(previous, contacts.keys, problem.contact_dim)
         where = f"step {k} (t = {scene.time + self.dt:.6g} s, {problem.nc} contacts)"
-        failures: list[str] = []
-        for name in (self.solver, *self.fallback):
-            info = solvers.get(name)
-            try:
-                solution = solvers.solve(
-                    problem,
-                    solver=name,
-                    tol=self.tol,
-                    warm_start=p0 if info.warm_start else None,
-                    max_iter=self.max_iter,
-                    time_limit=self.time_limit,
-                    **(self.solver_options if name == self.solver else {}),
-                )
-            except ProblemError:
-                raise  # the problem or the options are wrong, not the backend
-            except SolverError as exc:  # the backend raised (solvers.solve says what)
-                failures.append(f"{name}: {exc}")
-                continue
-            reason, res = self._judge(problem, solution, info.convex, energy_before)
-            if reason is None:
-                break
-            failures.append(f"{name}: {reason}")
-        else:
-            raise SolverError(f"{where}: " + "; ".join(failures))
-        assert res is not None
+        solution, name, failures, res = solve_chain(
+            problem,
+            (self.solver, *self.fallback),
+            Acceptance(self.tol, self.residual_factor, self.energy_factor),
+            energy_before,
+            where,
+            p0=p0,
+            options=self.solver_options,
+            max_iter=self.max_iter,
+            time_limit=self.time_limit,
+        )
 
         scatter_velocity(scene, problem.velocity(solution.p), problem.contact_dim == 1)
         free = scene.free
@@ -490,49 +474,6 @@ class Stepper:
         if self.problem is None or self.solution is None:
             raise ProblemError("no step has been taken yet: no contact impulses")
         return grain_impulses(self.scene, self.problem, self.solution.p)
-
-    def _judge(
-        self, problem: ConicProblem, solution: solvers.Solution, convex: bool, energy_before: float
-    ) -> tuple[str | None, Residuals | None]:
-        """Why a backend's answer is not accepted (``None``: it is), and its residuals."""
-        status = solution.status.value
-        if not solution.found:
-            native = solution.extras.get("native_status", "no native status")
-            return (
-                f"returned status {status} ({native}) after {solution.iterations} iterations",
-                None,
-            )
-        u, p = np.asarray(solution.u), np.asarray(solution.p)
-        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(p))):
-            return "returned non-finite velocities or impulses", None
-        res = residuals(problem, u, p)
-        measured = res.ccp if convex else res.coulomb
-        label = "ccp_residual" if convex else "coulomb_residual"
-        # An approximate model (faceted cones) answers another problem: its residual
-        # against the exact cone measures the model's error, not a failure.
-        approximate = bool(solution.extras.get("approximation"))
-        if (
-            self.residual_factor is not None
-            and not approximate
-            and not measured <= self.residual_factor * self.tol
-        ):
-            return (
-                f"{label} {measured:.3g} is above {self.residual_factor:g} x tol "
-                f"({self.residual_factor * self.tol:.3g}; status {status})",
-                res,
-            )
-        if self.energy_factor is not None:
-            v = problem.velocity(p)
-            after = 0.5 * float(np.sum(problem.mass * v * v))
-            free = 0.5 * float(np.sum(problem.mass * problem.U * problem.U))
-            bound = self.energy_factor * max(energy_before, free)
-            if after > bound and after > 0.0:
-                return (
-                    f"kinetic energy blew up: {after:.3g} after the step against "
-                    f"{max(energy_before, free):.3g} before (limit x{self.energy_factor:g})",
-                    res,
-                )
-        return None, res
 
     def export_step(self, path: str | os.PathLike[str]) -> Path:
         """Write the last step's problem, with its answer, as an FCLib global problem.
@@ -600,21 +541,3 @@ class Stepper:
 def _rotational_inertia(scene: Scene) -> FloatArray:
     inertia = scene.inertia
     return inertia if scene.dim == 2 else inertia[:, None]
-
-
-def match_impulses(
-    prev_keys: NDArray[np.int64], prev_p: FloatArray, keys: NDArray[np.int64]
-) -> FloatArray:
-    """Impulses of the previous step for the contacts of this one, matched by pair key.
-
-    Contacts that are new get zero. ``prev_keys`` must be sorted (as
-    :func:`~cocd.contacts.detect_contacts` returns them).
-    """
-    out = np.zeros((keys.size, prev_p.shape[1]))
-    if prev_keys.size == 0 or keys.size == 0:
-        return out
-    pos = np.searchsorted(prev_keys, keys)
-    pos = np.minimum(pos, prev_keys.size - 1)
-    hit = prev_keys[pos] == keys
-    out[hit] = prev_p[pos[hit]]
-    return out
