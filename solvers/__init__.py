@@ -137,15 +137,7 @@ def solve(
 
     if problem.nc == 0:
         # Free flight: nothing to solve, every backend would agree.
-        return Solution(
-            u=problem.U.copy(),
-            p=np.zeros((0, problem.contact_dim)),
-            status=Status.OPTIMAL,
-            iterations=0,
-            setup_time=0.0,
-            solve_time=0.0,
-            solver=solver,
-        )
+        return Solution.free_flight(problem, solver)
 
     fn = info.load()
     start = time.perf_counter()

@@ -97,8 +97,8 @@ from solvers._apgd_kernels import (
     step_and_length,
     weighted_square,
 )
+from solvers._iterative import Stop, ratio, residual_scales, start_impulses
 from solvers.base import Solution, Status
-from solvers.pgs_ import ignore_polish, impulse_rms, positive_int, ratio, start_impulses
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -138,23 +138,20 @@ def apgd_solve_problem(
         ``iterations`` the accepted steps.
     """
     start = time.perf_counter()
-    ignore_polish("apgd", options)
-    check_every = positive_int(check_every, "check_every")
-    cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
+    limits = (tol, max_iter, time_limit)
+    stop = Stop.of("apgd", start, limits, DEFAULT_MAX_ITER, check_every, verbose, options)
+    cap, check_every, deadline = stop.cap, stop.check_every, stop.deadline
 
     rho = problem.rho
     s = component_scaling(problem, scaling)
     scaled = _ScaledDual(problem, s)
-    rb = rho[:, None] * problem.b.reshape(s.shape)
-    rb_norm = float(np.linalg.norm(rb))
-    impulse_scale = impulse_rms(rb)
+    rb_norm, impulse_scale = residual_scales(problem)
     x = start_impulses(problem, warm_start) / s
     g_x = scaled.gradient(x)
     L = scaled.power_estimate()
     setup_time = time.perf_counter() - start
 
     solve_start = time.perf_counter()
-    deadline = None if time_limit is None else start + float(time_limit)
     mu_true = problem.mu
     # p = s q maps the cone of friction mu onto that of mu s_n / s_t.
     mu = mu_true * s[:, 0] / s[:, 1] if s.shape[1] > 1 else mu_true
@@ -242,23 +239,21 @@ def apgd_solve_problem(
         "ccp_iteration": np.asarray(check_iter, dtype=np.int64),
         "ccp": np.asarray(check_ccp),
     }
-    return Solution(
-        u=problem.velocity(p),
-        p=p,
-        status=status,
-        iterations=k,
-        setup_time=setup_time,
-        solve_time=solve_time,
-        solver="apgd",
-        extras={
-            "native_status": native,
-            "ccp": best_r,
-            "restarts": restarts,
-            "backtracks": backtracks,
-            "check_every": check_every,
-            "scaling": scaling,
-            "history": history,
-        },
+    times = (setup_time, solve_time)
+    return Solution.from_impulses(
+        problem,
+        p,
+        status,
+        k,
+        times,
+        "apgd",
+        native,
+        ccp=best_r,
+        restarts=restarts,
+        backtracks=backtracks,
+        check_every=check_every,
+        scaling=scaling,
+        history=history,
     )
 
 

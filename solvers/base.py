@@ -69,6 +69,45 @@ class Solution:
     solver: str
     extras: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_impulses(
+        cls,
+        problem: ConicProblem,
+        p: FloatArray,
+        status: Status,
+        iterations: int,
+        times: tuple[float, float],
+        solver: str,
+        native: str,
+        /,
+        **extras: Any,
+    ) -> Solution:
+        """The answer of a method that finds the impulses ``p``: ``u = problem.velocity(p)``;
+        ``times`` are the set-up and solve times, ``extras`` follow the native status."""
+        return cls(
+            u=problem.velocity(p),
+            p=p,
+            status=status,
+            iterations=iterations,
+            setup_time=times[0],
+            solve_time=times[1],
+            solver=solver,
+            extras={"native_status": native, **extras},
+        )
+
+    @classmethod
+    def free_flight(cls, problem: ConicProblem, solver: str, setup_time: float = 0.0) -> Solution:
+        """The answer without contacts: the free velocity, nothing to solve."""
+        return cls(
+            u=problem.U.copy(),
+            p=np.zeros((0, problem.contact_dim)),
+            status=Status.OPTIMAL,
+            iterations=0,
+            setup_time=setup_time,
+            solve_time=0.0,
+            solver=solver,
+        )
+
     @property
     def found(self) -> bool:
         """True when the backend claims an answer (optimal or inaccurate)."""

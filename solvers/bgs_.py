@@ -64,7 +64,6 @@ check).
 
 from __future__ import annotations
 
-import math
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -72,12 +71,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cocd.errors import ProblemError
-from cocd.residuals import ccp_residual
 from solvers._bgs_kernels import bgs_sweep, greedy_colours, support_depth
-from solvers._contact_kernels import natural_map_sq
-from solvers.base import Solution, Status
-from solvers.nscd_ import contact_blocks
-from solvers.pgs_ import ignore_polish, impulse_rms, positive_int, ratio, start_impulses
+from solvers._iterative import Contacts, Stop, contact_blocks, gauss_seidel, start_impulses
+from solvers.base import Solution
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -87,7 +83,6 @@ __all__ = ["DEFAULT_CHECK_EVERY", "DEFAULT_MAX_ITER", "ORDERS", "bgs_solve_probl
 DEFAULT_MAX_ITER = 10_000
 DEFAULT_CHECK_EVERY = 5
 ORDERS = ("natural", "top-down", "bottom-up")
-_VERBOSE_EVERY = 20
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -115,105 +110,35 @@ def bgs_solve_problem(
         ``iterations`` the sweeps made.
     """
     start = time.perf_counter()
-    ignore_polish("bgs", options)
+    limits = (tol, max_iter, time_limit)
+    stop = Stop.of("bgs", start, limits, DEFAULT_MAX_ITER, check_every, verbose, options)
     if order not in ORDERS:
         raise ProblemError(f"bgs: order must be one of {', '.join(ORDERS)}, got {order!r}")
-    check_every = positive_int(check_every, "check_every")
-    sweeps_cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
 
     nc, m = problem.nc, problem.contact_dim
-    H = problem.H if problem.H.has_sorted_indices else problem.H.sorted_indices()
-    indptr = H.indptr.astype(np.int64)
-    indices = H.indices.astype(np.int64)
-    data = np.ascontiguousarray(H.data, dtype=np.float64)
-    inv_mass = 1.0 / problem.mass
-    offset = np.ascontiguousarray(problem.offset, dtype=np.float64)
-    shift = problem.delassus_shift
-    rho = np.ascontiguousarray(problem.rho, dtype=np.float64)
-    mu = np.ascontiguousarray(problem.mu, dtype=np.float64)
-    W, Winv = contact_blocks(problem, indptr, indices, data, inv_mass)
-    sequence = _order(H, indptr, indices, m, nc, order)
+    c = Contacts.of(problem, sort=True)
+    W, Winv = contact_blocks(problem, c.indptr, c.indices, c.data, c.inv_mass)
+    sequence = _order(problem.H, c.indptr, c.indices, m, nc, order)
     if colour and nc > 0:
-        colours = greedy_colours(sequence, indptr, indices, m, H.shape[1])
+        colours = greedy_colours(sequence, c.indptr, c.indices, m, problem.H.shape[1])
         # Stable: within a colour the contacts keep their order.
         sequence = sequence[np.argsort(colours[sequence], kind="stable")]
         counts = np.bincount(colours, minlength=int(colours.max()) + 1)
         starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     else:
         starts = np.array([0, nc], dtype=np.int64)
-    rb = rho[:, None] * problem.b.reshape(nc, m)
-    rb_norm = float(np.linalg.norm(rb))
-    impulse_scale = impulse_rms(rb)
     p = start_impulses(problem, warm_start)
     setup_time = time.perf_counter() - start
 
-    solve_start = time.perf_counter()
-    deadline = None if time_limit is None else start + float(time_limit)
-    dp_history: list[float] = []
-    check_sweeps: list[int] = []
-    check_ccp: list[float] = []
-    best_p, best_r = p.copy(), math.inf
-    sweeps = 0
-    status, native = Status.MAX_ITER, "max_iter"
-    while True:
-        v = problem.velocity(p)  # resynchronise: the sweeps update v incrementally
-        r = ratio(
-            math.sqrt(natural_map_sq(indptr, indices, data, v, offset, rho, mu, p, shift)), rb_norm
-        )
-        check_sweeps.append(sweeps)
-        check_ccp.append(r)
-        if not (math.isfinite(r) or rb_norm == 0.0) or not np.all(np.isfinite(v)):
-            status, native = Status.ERROR, "non-finite iterate"
-            break
-        if r < best_r:
-            best_p, best_r = p.copy(), r
-        if verbose and (len(check_ccp) % _VERBOSE_EVERY == 1):
-            last = dp_history[-1] if dp_history else math.nan
-            print(f"bgs: sweep {sweeps:6d}  ccp {r:9.3e}  max|dp| {last:9.3e}")
-        if r <= tol:
-            exact = ccp_residual(problem, p)
-            if exact <= tol:
-                best_p, best_r = p.copy(), exact
-                status, native = Status.OPTIMAL, "converged"
-                break
-        if sweeps >= sweeps_cap:
-            break
-        if deadline is not None and time.perf_counter() >= deadline:
-            status, native = Status.TIME_LIMIT, "time_limit"
-            break
-        for _ in range(min(check_every, sweeps_cap - sweeps)):
-            biggest = bgs_sweep(
-                indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v, sequence, starts,
-                shift,
-            )  # fmt: skip
-            dp_history.append(biggest / impulse_scale)
-            sweeps += 1
-    solve_time = time.perf_counter() - solve_start
+    def sweeps(p: FloatArray, v: FloatArray, n: int) -> FloatArray:
+        return np.array([
+            bgs_sweep(c.indptr, c.indices, c.data, c.inv_mass, c.offset, W, Winv, c.mu, p, v,
+                      sequence, starts, c.shift)
+            for _ in range(n)
+        ])  # fmt: skip
 
-    if verbose:
-        print(f"bgs: {native} after {sweeps} sweeps, ccp {best_r:.3e}, {solve_time:.3g} s")
-    history = {
-        "dp": np.asarray(dp_history),
-        "ccp_iteration": np.asarray(check_sweeps, dtype=np.int64),
-        "ccp": np.asarray(check_ccp),
-    }
-    return Solution(
-        u=problem.velocity(best_p),
-        p=best_p,
-        status=status,
-        iterations=sweeps,
-        setup_time=setup_time,
-        solve_time=solve_time,
-        solver="bgs",
-        extras={
-            "native_status": native,
-            "ccp": best_r,
-            "colours": len(starts) - 1,
-            "order": order,
-            "check_every": check_every,
-            "history": history,
-        },
-    )
+    extras = {"colours": len(starts) - 1, "order": order, "check_every": stop.check_every}
+    return gauss_seidel(problem, c, p, sweeps, stop, setup_time, finite_residual=True, **extras)
 
 
 def _order(H: Any, indptr: IntArray, indices: IntArray, m: int, nc: int, order: str) -> IntArray:

@@ -381,15 +381,7 @@ def cvxpy_solve_problem(
     free = _free_options(solver, native, options)
 
     if problem.nc == 0:
-        return Solution(
-            u=problem.U.copy(),
-            p=np.zeros((0, problem.contact_dim)),
-            status=Status.OPTIMAL,
-            iterations=0,
-            setup_time=time.perf_counter() - start,
-            solve_time=0.0,
-            solver=name,
-        )
+        return Solution.free_flight(problem, name, time.perf_counter() - start)
 
     model = build_model(problem)
     build_time = time.perf_counter() - start

@@ -163,22 +163,19 @@ def fp_solve_problem(
         res_out = coulomb_residual(problem, p_out)
     else:
         res_out, p_out, _ = best
-    return Solution(
-        u=problem.velocity(p_out),
-        p=p_out,
-        status=status,
-        iterations=iterations,
-        setup_time=setup_time,
-        solve_time=total - setup_time,
-        solver=f"fp:{inner}",
-        extras={
-            "native_status": status.value,
-            "inner": inner,
-            "outer": outer,
-            "coulomb_residual": res_out,
-            "history": history,
-            **({"approximation": approximation} if approximation else {}),
-        },
+    return Solution.from_impulses(
+        problem,
+        p_out,
+        status,
+        iterations,
+        (setup_time, total - setup_time),
+        f"fp:{inner}",
+        status.value,
+        inner=inner,
+        outer=outer,
+        coulomb_residual=res_out,
+        history=history,
+        **({"approximation": approximation} if approximation else {}),
     )
 
 

@@ -525,24 +525,21 @@ def ipm_solve_problem(
             if res_best <= tol:
                 status = Status.OPTIMAL
     solve_time = time.perf_counter() - solve_start
-    return Solution(
-        u=problem.velocity(p_out),
-        p=p_out,
-        status=status,
-        iterations=len(history),
-        setup_time=times["setup"],
-        solve_time=solve_time,
-        solver="ipm",
-        extras={
-            "native_status": status.value,
-            "linsolve": linsolve,
-            "history": history,
-            "times": times,
-            "ccp_residual": ccp_residual(problem, p_out),
-            "polished": polished,
-            "factorisations": factorisations[0],
-            "system_size": int(K.shape[0]),
-            "system_nnz": int(K.nnz),
-            "factor_nnz": None if lin is None else lin.factor_nnz,
-        },
+    return Solution.from_impulses(
+        problem,
+        p_out,
+        status,
+        len(history),
+        (times["setup"], solve_time),
+        "ipm",
+        status.value,
+        linsolve=linsolve,
+        history=history,
+        times=times,
+        ccp_residual=ccp_residual(problem, p_out),
+        polished=polished,
+        factorisations=factorisations[0],
+        system_size=int(K.shape[0]),
+        system_nnz=int(K.nnz),
+        factor_nnz=None if lin is None else lin.factor_nnz,
     )

@@ -70,7 +70,7 @@ import numpy as np
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import coulomb_residual
-from solvers._contact_kernels import delassus_blocks
+from solvers._iterative import Contacts, contact_blocks
 from solvers._nscd_kernels import LOCAL_EXACT, LOCAL_FB, nscd_sweeps
 from solvers.base import Solution, Status
 
@@ -79,7 +79,7 @@ if TYPE_CHECKING:
 
     from cocd.problem import ConicProblem
 
-__all__ = ["DEFAULT_MAX_SWEEPS", "nscd_solve_problem"]
+__all__ = ["DEFAULT_MAX_SWEEPS", "contact_blocks", "nscd_solve_problem"]
 
 DEFAULT_MAX_SWEEPS = 20000
 _LOCAL = {"exact": LOCAL_EXACT, "fb": LOCAL_FB}
@@ -112,21 +112,12 @@ def nscd_solve_problem(
 
     start = time.perf_counter()
     nc, m = problem.nc, problem.contact_dim
-    H = problem.H
-    if not H.has_sorted_indices:
-        H = H.sorted_indices()
-    indptr = H.indptr.astype(np.int64)
-    indices = H.indices.astype(np.int64)
-    data = H.data
-    inv_mass = 1.0 / problem.mass
-    offset = np.ascontiguousarray(problem.offset)
-    mu = np.ascontiguousarray(problem.mu)
-    shift = problem.delassus_shift
-    W, Winv = contact_blocks(problem, indptr, indices, data, inv_mass)
+    c = Contacts.of(problem, sort=True)
+    W, Winv = contact_blocks(problem, c.indptr, c.indices, c.data, c.inv_mass)
     if warm_start is None:
         p = np.zeros((nc, m))
     else:
-        p = project_coulomb(np.asarray(warm_start, dtype=np.float64).reshape(nc, m), mu)
+        p = project_coulomb(np.asarray(warm_start, dtype=np.float64).reshape(nc, m), c.mu)
     p = np.ascontiguousarray(p)
     v = problem.velocity(p)
     setup_time = time.perf_counter() - start
@@ -144,8 +135,8 @@ def nscd_solve_problem(
         # was nearly right, needs no more.
         chunk = 1 if sweeps == 0 else min(check_every, max_sweeps - sweeps)
         dp_max = nscd_sweeps(
-            indptr, indices, data, inv_mass, offset, W, Winv, mu, p, v,
-            chunk, symmetric, relax, shift, local, counts,
+            c.indptr, c.indices, c.data, c.inv_mass, c.offset, W, Winv, c.mu, p, v,
+            chunk, symmetric, relax, c.shift, local, counts,
         )  # fmt: skip
         sweeps += chunk
         # Rounding accumulates in v over many updates: restart it from p.
@@ -163,53 +154,22 @@ def nscd_solve_problem(
             break
     solve_time = time.perf_counter() - start
 
-    return Solution(
-        u=problem.velocity(best_p),
-        p=best_p,
-        status=status,
-        iterations=sweeps,
-        setup_time=setup_time,
-        solve_time=solve_time,
-        solver="nscd",
-        extras={
-            "native_status": status.value,
-            "coulomb_residual": best_res,
-            "history": history,
-            "dp_max": dp_max,
-            "branches": _branches(problem, best_p),
-            "local": local_name,
-            "local_newton": int(counts[0]),
-            "local_fallbacks": int(counts[1]),
-        },
+    return Solution.from_impulses(
+        problem,
+        best_p,
+        status,
+        sweeps,
+        (setup_time, solve_time),
+        "nscd",
+        status.value,
+        coulomb_residual=best_res,
+        history=history,
+        dp_max=dp_max,
+        branches=_branches(problem, best_p),
+        local=local_name,
+        local_newton=int(counts[0]),
+        local_fallbacks=int(counts[1]),
     )
-
-
-def contact_blocks(
-    problem: ConicProblem,
-    indptr: NDArray[np.int64],
-    indices: NDArray[np.int64],
-    data: NDArray[np.float64],
-    inv_mass: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The problem's diagonal Delassus blocks ``W_aa`` (``(nc, m, m)``, the Delassus shift
-    taken off) and their inverses, from the CSR arrays of ``H`` (shared with ``bgs``)."""
-    nc, m = problem.nc, problem.contact_dim
-    W = delassus_blocks(indptr, indices, data, inv_mass, nc, m)  # of H M^-1 H'
-    if problem.delassus_shift:  # the problem's own blocks: W = H M^-1 H' - shift I
-        W = W - problem.delassus_shift * np.eye(m)[None, :, :]
-    return W, _inverses(W)
-
-
-def _inverses(W: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Inverses of the blocks ``(nc, m, m)``; a singular block (a contact between
-    bodies without unknowns) gets zeros, and its contact stays separated."""
-    det = np.linalg.det(W)
-    scale = np.einsum("aii->a", W) ** W.shape[1]
-    ok = det > 1e-14 * scale
-    out = np.zeros_like(W)
-    if np.any(ok):
-        out[ok] = np.linalg.inv(W[ok])
-    return out
 
 
 def _branches(problem: ConicProblem, p: NDArray[np.float64]) -> dict[str, int]:

@@ -65,20 +65,15 @@ the residual there). ``extras["ccp"]`` is the residual of the returned impulses.
 
 from __future__ import annotations
 
-import math
 import time
-import warnings
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from cocd.cones import project_coulomb
-from cocd.errors import ProblemError
-from cocd.residuals import ccp_residual
-from solvers._contact_kernels import natural_map_sq
+from solvers._iterative import Contacts, Stop, gauss_seidel, relaxation, start_impulses
 from solvers._pgs_kernels import pgs_sweeps
-from solvers.base import Solution, Status
+from solvers.base import Solution
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -87,7 +82,6 @@ __all__ = ["DEFAULT_CHECK_EVERY", "DEFAULT_MAX_ITER", "pgs_solve_problem"]
 
 DEFAULT_MAX_ITER = 10_000
 DEFAULT_CHECK_EVERY = 5
-_VERBOSE_EVERY = 20
 
 FloatArray = NDArray[np.float64]
 
@@ -113,150 +107,21 @@ def pgs_solve_problem(
         ``iterations`` the sweeps made.
     """
     start = time.perf_counter()
-    ignore_polish("pgs", options)
+    limits = (tol, max_iter, time_limit)
+    stop = Stop.of("pgs", start, limits, DEFAULT_MAX_ITER, check_every, verbose, options)
     omega = relaxation(omega)
-    check_every = positive_int(check_every, "check_every")
-    sweeps_cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
-
-    nc, m = problem.nc, problem.contact_dim
-    H = problem.H
-    indptr = H.indptr.astype(np.int64)
-    indices = H.indices.astype(np.int64)
-    data = np.ascontiguousarray(H.data, dtype=np.float64)
-    inv_mass = 1.0 / problem.mass
-    offset = np.ascontiguousarray(problem.offset, dtype=np.float64)
-    shift = problem.delassus_shift
-    rho = np.ascontiguousarray(problem.rho, dtype=np.float64)
-    mu = np.ascontiguousarray(problem.mu, dtype=np.float64)
-    rb = rho[:, None] * problem.b.reshape(nc, m)
-    rb_norm = float(np.linalg.norm(rb))
-    impulse_scale = impulse_rms(rb)
+    c = Contacts.of(problem)
     p = start_impulses(problem, warm_start)
     setup_time = time.perf_counter() - start
+    dp_buffer = np.empty(stop.check_every)
 
-    solve_start = time.perf_counter()
-    deadline = None if time_limit is None else start + float(time_limit)
-    dp_buffer = np.empty(check_every)
-    dp_history: list[FloatArray] = []
-    check_sweeps: list[int] = []
-    check_ccp: list[float] = []
-    best_p, best_r = p.copy(), math.inf
-    sweeps = 0
-    status = Status.MAX_ITER
-    native = "max_iter"
-    while True:
-        v = problem.velocity(p)  # resynchronise: the sweeps update v incrementally
-        r = ratio(
-            math.sqrt(natural_map_sq(indptr, indices, data, v, offset, rho, mu, p, shift)), rb_norm
-        )
-        check_sweeps.append(sweeps)
-        check_ccp.append(r)
-        if not np.all(np.isfinite(v)):
-            status, native = Status.ERROR, "non-finite iterate"
-            break
-        if r < best_r:
-            best_p, best_r = p.copy(), r
-        if verbose and (len(check_ccp) % _VERBOSE_EVERY == 1):
-            last = dp_history[-1][-1] if dp_history else math.nan
-            print(f"pgs: sweep {sweeps:6d}  ccp {r:9.3e}  max|dp| {last:9.3e}")
-        if r <= tol:
-            exact = ccp_residual(problem, p)
-            if exact <= tol:
-                best_p, best_r = p.copy(), exact
-                status, native = Status.OPTIMAL, "converged"
-                break
-        if sweeps >= sweeps_cap:
-            break
-        if deadline is not None and time.perf_counter() >= deadline:
-            status, native = Status.TIME_LIMIT, "time_limit"
-            break
-        n = min(check_every, sweeps_cap - sweeps)
+    def sweeps(p: FloatArray, v: FloatArray, n: int) -> FloatArray:
         pgs_sweeps(
-            indptr, indices, data, inv_mass, offset, rho, mu, omega, p, v, n, dp_buffer, shift
-        )
-        dp_history.append(dp_buffer[:n] / impulse_scale)
-        sweeps += n
-    solve_time = time.perf_counter() - solve_start
+            c.indptr, c.indices, c.data, c.inv_mass, c.offset, c.rho, c.mu, omega, p, v, n,
+            dp_buffer, c.shift,
+        )  # fmt: skip
+        return dp_buffer[:n]
 
-    if verbose:
-        print(f"pgs: {native} after {sweeps} sweeps, ccp {best_r:.3e}, {solve_time:.3g} s")
-    history = {
-        "dp": np.concatenate(dp_history) if dp_history else np.zeros(0),
-        "ccp_iteration": np.asarray(check_sweeps, dtype=np.int64),
-        "ccp": np.asarray(check_ccp),
-    }
-    return Solution(
-        u=problem.velocity(best_p),
-        p=best_p,
-        status=status,
-        iterations=sweeps,
-        setup_time=setup_time,
-        solve_time=solve_time,
-        solver="pgs",
-        extras={
-            "native_status": native,
-            "ccp": best_r,
-            "omega": omega,
-            "check_every": check_every,
-            "history": history,
-        },
+    return gauss_seidel(
+        problem, c, p, sweeps, stop, setup_time, omega=omega, check_every=stop.check_every
     )
-
-
-# -- helpers shared with solvers.apgd_ ---------------------------------------
-def start_impulses(problem: ConicProblem, warm_start: NDArray[np.float64] | None) -> FloatArray:
-    """The starting impulses ``(nc, m)``: the warm start projected on the cones, or zero."""
-    shape = (problem.nc, problem.contact_dim)
-    if warm_start is None:
-        return np.zeros(shape)
-    p0 = np.asarray(warm_start, dtype=np.float64).reshape(shape)
-    if not np.all(np.isfinite(p0)):
-        raise ProblemError("warm_start has non-finite entries")
-    return np.ascontiguousarray(project_coulomb(p0, problem.mu))
-
-
-def ignore_polish(solver: str, options: dict[str, Any]) -> None:
-    """Warn when ``polish=True`` is asked of an iterative method (its other options
-    are checked by :func:`solvers.solve` against its ``SolverInfo.accepts``).
-
-    The iterative methods answer with their own iterates and never polish:
-    ``polish=False`` (which the conformance suite passes to every backend) is
-    what they do anyway, ``polish=True`` warns that it is ignored.
-    """
-    if options.get("polish", False):
-        warnings.warn(
-            f"{solver} does not polish its answer; polish=True is ignored",
-            UserWarning,
-            stacklevel=3,
-        )
-
-
-def relaxation(omega: Any) -> float:
-    """``omega`` as a float in (0, 2), else :class:`ProblemError`."""
-    try:
-        value = float(omega)
-    except (TypeError, ValueError):
-        raise ProblemError(f"omega must be a number in (0, 2), got {omega!r}") from None
-    if not (0.0 < value < 2.0):
-        raise ProblemError(f"omega must be in (0, 2) (over-relaxation factor), got {omega!r}")
-    return value
-
-
-def positive_int(value: Any, name: str) -> int:
-    """``value`` as a positive int, else :class:`ProblemError`."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ProblemError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def impulse_rms(rb: FloatArray) -> float:
-    """Root mean square over contacts of ``rho_a b_a``, 1 when zero (as in cocd.residuals)."""
-    s = float(np.linalg.norm(rb)) / math.sqrt(max(rb.shape[0], 1))
-    return s if s > 0.0 else 1.0
-
-
-def ratio(num: float, den: float) -> float:
-    """``num / den`` with ``0 / x = 0`` and ``x / 0 = inf`` (as in cocd.residuals)."""
-    if num == 0.0:
-        return 0.0
-    return num / den if den > 0.0 else math.inf
