@@ -43,7 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import scipy.linalg as sla
@@ -139,8 +139,31 @@ def _check_common(dim: int, mu: ArrayLike, m_nc: int, where: str) -> tuple[int, 
     return nc, mu_a
 
 
+class _Described:
+    """What local and global problems share: a name, a label for messages, the dimension."""
+
+    kind: ClassVar[str]
+    dim: int
+    title: str
+    source: str
+
+    @property
+    def name(self) -> str:
+        return Path(self.source).name if self.source else (self.title or f"{self.kind} problem")
+
+    @property
+    def _where(self) -> str:
+        return _label(self.source, self.kind)
+
+    def _check_dimension(self) -> str:
+        """Check ``dim``; return the label for messages."""
+        where = self._where
+        self.dim = _dimension(self.dim, where)
+        return where
+
+
 @dataclass(eq=False)
-class LocalProblem:
+class LocalProblem(_Described):
     """``u = W r + q`` with Coulomb's law per contact (see the module docstring).
 
     Attributes
@@ -171,8 +194,7 @@ class LocalProblem:
     kind = "local"
 
     def __post_init__(self) -> None:
-        where = _label(self.source, "local")
-        self.dim = _dimension(self.dim, where)
+        where = self._check_dimension()
         shape = getattr(self.W, "shape", None)
         if shape is None or len(shape) != 2 or shape[0] != shape[1]:
             raise ProblemError(f"{where}: W must be a square matrix, got shape {shape}")
@@ -180,10 +202,6 @@ class LocalProblem:
         self.q = _vector("q", self.q, n, where)
         self.nc, self.mu = _check_common(self.dim, self.mu, n, where)
         self.W = _matrix("W", self.W, (n, n), where)
-
-    @property
-    def name(self) -> str:
-        return Path(self.source).name if self.source else (self.title or "local problem")
 
     def local(self) -> LocalProblem:
         """This problem (a local problem is its own condensed form)."""
@@ -199,7 +217,7 @@ class LocalProblem:
 
     @cached_property
     def _factor(self) -> tuple[sp.csr_matrix, float]:
-        return _delassus_factor(self.W, _label(self.source, "local"))
+        return _delassus_factor(self.W, self._where)
 
     @property
     def shift(self) -> float:
@@ -240,7 +258,7 @@ class LocalProblem:
 
 
 @dataclass(eq=False)
-class GlobalProblem:
+class GlobalProblem(_Described):
     """``M v = H r + f``, ``u = H' v + w`` with Coulomb's law (module docstring).
 
     Attributes
@@ -271,8 +289,7 @@ class GlobalProblem:
     kind = "global"
 
     def __post_init__(self) -> None:
-        where = _label(self.source, "global")
-        self.dim = _dimension(self.dim, where)
+        where = self._check_dimension()
         f = np.asarray(self.f, dtype=np.float64).reshape(-1)
         w = np.asarray(self.w, dtype=np.float64).reshape(-1)
         self.nc, self.mu = _check_common(self.dim, self.mu, w.size, where)
@@ -282,14 +299,10 @@ class GlobalProblem:
         self.M = _matrix("M", self.M, (f.size, f.size), where)
         self.H = _matrix("H", self.H, (f.size, w.size), where)
 
-    @property
-    def name(self) -> str:
-        return Path(self.source).name if self.source else (self.title or "global problem")
-
     @cached_property
     def _mass_factor(self) -> tuple[FloatArray | None, sp.csc_matrix | None]:
         """``(diag M, None)`` for a diagonal M, else ``(None, L^-1)`` with ``M = L L'``."""
-        return _mass_factor(self.M, _label(self.source, "global"))
+        return _mass_factor(self.M, self._where)
 
     @property
     def mass_is_diagonal(self) -> bool:
