@@ -68,3 +68,27 @@ def pytest_configure(config):
     config.addinivalue_line(
         "markers", "unchecked_solutions: do not assert cone membership and ccp <= 10 tol"
     )
+
+
+def normal_impulses_from_top(scene, contacts, p):
+    """Normal impulses of the touching contacts of a vertical stack, from the top one down.
+
+    A contact's height is the mid-height of its two grains, 0 for a wall.
+    """
+    z = scene.positions[:, -1]
+    wall = contacts.j < 0
+    height = np.where(wall, 0.0, 0.5 * (z[contacts.i] + z[np.where(wall, 0, contacts.j)]))
+    touching = contacts.gap < 1e-9
+    return p[touching, 0][np.argsort(-height[touching])]
+
+
+def jittered_lattice(rng, shape, radius, sizes, spacing, jitter):
+    """Grains on a square (cubic) lattice of ``shape``: lattice indices ``(n, d)``,
+    radii ``radius * U(sizes)`` and centres ``spacing * radius * index`` moved by
+    ``radius * U(-jitter, jitter)``, drawn from ``rng`` in that order."""
+    dim = len(shape)
+    idx = np.indices(shape).reshape(dim, -1).T
+    n = idx.shape[0]
+    radii = radius * rng.uniform(*sizes, n)
+    x = spacing * radius * idx + radius * rng.uniform(-jitter, jitter, (n, dim))
+    return idx, radii, x

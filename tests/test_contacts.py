@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import jittered_lattice
 
 from cocd import Scene, SceneError, Wall, assemble, detect_contacts
 from cocd.contacts import contact_jacobian, dof_layout
@@ -22,10 +23,8 @@ def lattice_scene(dim, *, seed, mu=0.3, mu_wall=0.2, wall_mu=WALL_MU, moving=Fal
     """
     rng = np.random.default_rng(seed)
     shape = (8, 8) if dim == 2 else (4, 4, 4)
-    idx = np.indices(shape).reshape(dim, -1).T
-    n = idx.shape[0]
-    radii = R0 * rng.uniform(0.8, 1.2, n)
-    x = 2.52 * R0 * idx + R0 * rng.uniform(-0.05, 0.05, (n, dim))
+    idx, radii, x = jittered_lattice(rng, shape, R0, (0.8, 1.2), 2.52, 0.05)
+    n = len(radii)
     fixed = (idx[:, -1] == 0) & (idx[:, 0] >= shape[0] - 3) & np.all(idx[:, 1:-1] == 0, axis=1)
     radii[fixed] = 1.2 * R0
     up = np.eye(dim)[-1]

@@ -7,6 +7,7 @@ import warnings
 import h5py
 import numpy as np
 import pytest
+from conftest import jittered_lattice
 
 import cocd
 from cocd import Scene, Wall, detect_contacts
@@ -25,10 +26,8 @@ def moving_lattice(dim, seed, fast=3):
     fixed grain and two walls."""
     rng = np.random.default_rng(seed)
     shape = (7, 7) if dim == 2 else (4, 4, 4)
-    idx = np.indices(shape).reshape(dim, -1).T
-    n = idx.shape[0]
-    radii = R * rng.uniform(0.9, 1.1, n)
-    x = 2.6 * R * idx + R * rng.uniform(-0.1, 0.1, (n, dim))
+    _, radii, x = jittered_lattice(rng, shape, R, (0.9, 1.1), 2.6, 0.1)
+    n = len(radii)
     v = rng.normal(scale=1.0, size=(n, dim))
     v[rng.choice(n, fast, replace=False)] *= 20.0
     fixed = np.zeros(n, dtype=bool)

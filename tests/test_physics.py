@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import normal_impulses_from_top
 
 from cocd import Scene, Stepper, Wall, stack
 
@@ -128,17 +129,10 @@ def test_resting_stack_impulses(dim):
     stepper = Stepper(scene, dt)
     stepper.run(20)
     assert np.abs(scene.velocities).max() < 1e-8
-    contacts, p = stepper.contacts, stepper.solution.p
+    p = stepper.solution.p
     m = scene.masses[0]
     # Contact k from the top carries the weight of the k grains above it.
-    heights = np.where(
-        contacts.j >= 0,
-        0.5 * (scene.positions[contacts.i, -1] + scene.positions[np.maximum(contacts.j, 0), -1]),
-        0.0,
-    )
-    touching = contacts.gap < 1e-9
-    order = np.argsort(-heights[touching])
-    pn = p[touching, 0][order]
+    pn = normal_impulses_from_top(scene, stepper.contacts, p)
     assert pn.size == n
     expected = np.arange(1, n + 1) * m * G * dt
     np.testing.assert_allclose(pn, expected, rtol=1e-6)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from conftest import jittered_lattice
 
 from cocd import ConicProblem, ProblemError, Scene, Wall, assemble, detect_contacts
 from cocd.problem import generalized_velocity
@@ -18,10 +19,8 @@ def small_problem(dim, *, seed, frictionless=False):
     """A jittered lattice with a fixed grain, a floor and a wall, squeezed: some contacts close."""
     rng = np.random.default_rng(seed)
     shape = (3, 3) if dim == 2 else (2, 2, 2)
-    idx = np.indices(shape).reshape(dim, -1).T
-    n = idx.shape[0]
-    radii = R0 * rng.uniform(0.8, 1.2, n)
-    x = 2.46 * R0 * idx + R0 * rng.uniform(-0.02, 0.02, (n, dim))
+    _, radii, x = jittered_lattice(rng, shape, R0, (0.8, 1.2), 2.46, 0.02)
+    n = len(radii)
     x[:, -1] += 1.25 * R0
     up = np.eye(dim)[-1]
     walls = [Wall(np.zeros(dim), up), Wall(-1.25 * R0 * np.eye(dim)[0], np.eye(dim)[0], mu=0.6)]
@@ -149,6 +148,12 @@ def test_primal_form_cones(case):
     assert (form.P - sp.diags(form.P.diagonal())).nnz == 0
 
 
+def sample_duals(problem, seed, count):
+    """``count`` draws of :func:`random_duals` from ``default_rng(seed)``."""
+    rng = np.random.default_rng(seed)
+    return [random_duals(problem, rng) for _ in range(count)]
+
+
 def random_duals(problem, rng):
     """Random z in the dual of the primal form's cones (nonneg, or SOC: self-dual)."""
     nc, m = problem.nc, problem.contact_dim
@@ -166,9 +171,7 @@ def test_impulses_from_duals_lie_in_the_coulomb_cone(case):
     """form.impulses(z) is in K for z in the dual cones, boundary z giving boundary p."""
     _, problem = case
     form = problem.primal_conic_form()
-    rng = np.random.default_rng(1)
-    for _ in range(20):
-        z = random_duals(problem, rng)
+    for z in sample_duals(problem, 1, 20):
         p = form.impulses(z)
         assert p.shape == (problem.nc, problem.contact_dim)
         assert np.all(p[:, 0] >= 0.0)
@@ -187,9 +190,7 @@ def test_kkt_stationarity_is_momentum_balance(case):
     """P x + q + A'z = 0 with x = -P^-1 A'z gives M(u - U) = H'p, p = impulses(z)."""
     _, problem = case
     form = problem.primal_conic_form()
-    rng = np.random.default_rng(2)
-    for _ in range(5):
-        z = random_duals(problem, rng)
+    for z in sample_duals(problem, 2, 5):
         x = -(form.A.T @ z) / form.P.diagonal()
         np.testing.assert_allclose(form.P @ x + form.q + form.A.T @ z, 0.0, atol=1e-12)
         u = form.velocity(x)

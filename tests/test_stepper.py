@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_conic_backends import heap
 
 from cocd import ProblemError, Scene, Stepper, Wall, column_2d, stack
 from cocd.stepper import StepRecord, match_impulses
@@ -91,19 +92,8 @@ def test_column_collapse_flows_and_stays_valid():
 
 
 def test_3d_heap_in_a_box():
-    rng = np.random.default_rng(3)
-    r = 0.005
-    cells = np.stack(np.meshgrid(np.arange(4), np.arange(4), np.arange(6), indexing="ij"), -1)
-    x = cells.reshape(-1, 3) * 2.2 * r + 1.1 * r + rng.uniform(-0.05 * r, 0.05 * r, (96, 3))
-    side = 4 * 2.2 * r
-    walls = [
-        Wall((0, 0, 0), (0, 0, 1)),
-        Wall((0, 0, 0), (1, 0, 0)),
-        Wall((0, 0, 0), (0, 1, 0)),
-        Wall((side, 0, 0), (-1, 0, 0)),
-        Wall((0, side, 0), (0, -1, 0)),
-    ]
-    scene = Scene(x, r * (1 + 0.1 * (rng.random(96) - 0.5)), walls=walls, mu=0.4)
+    scene = heap(4, 6)  # 96 spheres in a box open at the top
+    side = 4 * 2.2 * 0.005
     stepper = Stepper(scene, 1e-3)
     stepper.run(30)
     assert stepper.problem.nc > 200
