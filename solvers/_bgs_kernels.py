@@ -46,6 +46,18 @@ _TINY = 1e-300
 
 
 @njit(cache=True, inline="always")
+def _ewe(W, e1, e2):
+    """``e'W e`` for ``e = (1, e1, e2)``."""
+    return (
+        W[0, 0]
+        + 2.0 * (W[0, 1] * e1 + W[0, 2] * e2)
+        + W[1, 1] * e1 * e1
+        + 2.0 * W[1, 2] * e1 * e2
+        + W[2, 2] * e2 * e2
+    )
+
+
+@njit(cache=True, inline="always")
 def _phi(W, r, mu, theta):
     """``(r.e)^2 / e'W e`` when ``r.e < 0`` (else 0) for ``e = (1, mu cos, mu sin)``."""
     c, s = np.cos(theta), np.sin(theta)
@@ -53,13 +65,7 @@ def _phi(W, r, mu, theta):
     alpha = r[0] + r[1] * e1 + r[2] * e2
     if alpha >= 0.0:
         return 0.0
-    beta = (
-        W[0, 0]
-        + 2.0 * (W[0, 1] * e1 + W[0, 2] * e2)
-        + W[1, 1] * e1 * e1
-        + 2.0 * W[1, 2] * e1 * e2
-        + W[2, 2] * e2 * e2
-    )
+    beta = _ewe(W, e1, e2)
     if beta <= 0.0:
         return 0.0
     return alpha * alpha / beta
@@ -218,13 +224,7 @@ def local_ccp(W, Winv, r, mu, previous, out):
     c, s = np.cos(theta), np.sin(theta)
     e1, e2 = mu * c, mu * s
     alpha = r[0] + r[1] * e1 + r[2] * e2
-    beta = (
-        W[0, 0]
-        + 2.0 * (W[0, 1] * e1 + W[0, 2] * e2)
-        + W[1, 1] * e1 * e1
-        + 2.0 * W[1, 2] * e1 * e2
-        + W[2, 2] * e2 * e2
-    )
+    beta = _ewe(W, e1, e2)
     t = -alpha / max(beta, _TINY)
     out[0] = t
     out[1] = t * e1

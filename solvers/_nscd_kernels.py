@@ -50,21 +50,13 @@ def nscd_sweeps(
 
     Parameters
     ----------
-    indptr, indices, data : CSR arrays of ``H``, shape ``(m nc, ndof)``
-    inv_mass : (ndof,)
-    offset : (m nc,)
-        ``(D/dt, 0..)`` per contact.
+    indptr, indices, data, inv_mass, offset, mu, p, v, n_sweeps
+        As in :func:`solvers._pgs_kernels.pgs_sweeps`.
     W, Winv : (nc, m, m)
         Diagonal blocks of the Delassus operator and their inverses.
     shift : float
         The problem's ``delassus_shift``: ``H_a M^-1 H_a' = W_aa + shift I``, so
         the contact's own part of ``H_a v`` is ``(W_aa + shift I) p_a``.
-    mu : (nc,)
-    p : (nc, m)
-        Impulses, updated.
-    v : (ndof,)
-        ``U + M^-1 H'p``, updated with ``p``.
-    n_sweeps : int
     symmetric : bool
         Alternate forward and backward sweeps (symmetric Gauss-Seidel).
     relax : float

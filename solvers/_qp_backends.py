@@ -40,8 +40,6 @@ class Backend:
     """How one qpsolvers backend is driven (see the table of :mod:`solvers.qpsolvers_`)."""
 
     settings: Settings
-    #: Native names set from tol, max_iter, time_limit (not settable by the user).
-    mapped: frozenset[str]
     #: Every native setting name, or None when it cannot be checked here.
     names: Callable[[], set[str]] | None
     status: Callable[[Any], tuple[str, Status]] = _found_status
@@ -51,6 +49,11 @@ class Backend:
     dual_start: bool = False
     dense: bool = False
     defaults: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def mapped(self) -> frozenset[str]:
+        """Native names set from tol, max_iter, time_limit (not settable by the user)."""
+        return frozenset(self.settings(1.0, 1, 1.0))
 
 
 def _opt(**kwargs: Any) -> dict[str, Any]:
@@ -292,7 +295,6 @@ def _gurobi_status(sol: Any) -> tuple[str, Status]:
 BACKENDS: dict[str, Backend] = {
     "osqp": Backend(
         settings=lambda t, it, tl: _opt(eps_abs=t, eps_rel=t, max_iter=it, time_limit=tl),
-        mapped=frozenset({"eps_abs", "eps_rel", "max_iter", "time_limit"}),
         names=_osqp_names,
         status=_osqp_status,
         iterations=_info_iter,
@@ -301,7 +303,6 @@ BACKENDS: dict[str, Backend] = {
     ),
     "proxqp": Backend(
         settings=lambda t, it, tl: _opt(eps_abs=t, eps_rel=t, max_iter=it),
-        mapped=frozenset({"eps_abs", "eps_rel", "max_iter"}),
         names=_proxqp_names,
         status=_proxqp_status,
         iterations=_info_iter,
@@ -310,9 +311,6 @@ BACKENDS: dict[str, Backend] = {
     "piqp": Backend(
         settings=lambda t, it, tl: _opt(
             eps_abs=t, eps_rel=t, eps_duality_gap_abs=t, eps_duality_gap_rel=t, max_iter=it
-        ),
-        mapped=frozenset(
-            {"eps_abs", "eps_rel", "eps_duality_gap_abs", "eps_duality_gap_rel", "max_iter"}
         ),
         names=_piqp_names,
         status=_piqp_status,
@@ -327,9 +325,6 @@ BACKENDS: dict[str, Backend] = {
             max_iter=it,
             time_limit=tl,
         ),
-        mapped=frozenset(
-            {"tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio", "max_iter", "time_limit"}
-        ),
         names=_clarabel_names,
         status=_clarabel_status,
     ),
@@ -337,7 +332,6 @@ BACKENDS: dict[str, Backend] = {
         settings=lambda t, it, tl: _opt(
             primal_tol=t, dual_tol=min(t, 1e-12), iter_limit=it, time_limit=tl
         ),
-        mapped=frozenset({"primal_tol", "dual_tol", "iter_limit", "time_limit"}),
         names=_daqp_names,
         floor=None,
         dense=True,
@@ -349,20 +343,11 @@ BACKENDS: dict[str, Backend] = {
             qp_iteration_limit=it,
             time_limit=tl,
         ),
-        mapped=frozenset(
-            {
-                "primal_feasibility_tolerance",
-                "dual_feasibility_tolerance",
-                "qp_iteration_limit",
-                "time_limit",
-            }
-        ),
         names=_highs_names,
         floor=None,
     ),
     "quadprog": Backend(
         settings=lambda t, it, tl: {},
-        mapped=frozenset(),
         names=lambda: {"factorized"},
         iterations=_quadprog_iterations,
         floor=None,
@@ -370,7 +355,6 @@ BACKENDS: dict[str, Backend] = {
     ),
     "scs": Backend(
         settings=lambda t, it, tl: _opt(eps_abs=t, eps_rel=t, max_iters=it, time_limit_secs=tl),
-        mapped=frozenset({"eps_abs", "eps_rel", "max_iters", "time_limit_secs"}),
         names=lambda: set(_SCS_NAMES),
         status=_scs_status,
         iterations=_dict_iter("iter"),
@@ -378,7 +362,6 @@ BACKENDS: dict[str, Backend] = {
     ),
     "ecos": Backend(
         settings=lambda t, it, tl: _opt(abstol=t, reltol=t, feastol=t, max_iters=it),
-        mapped=frozenset({"abstol", "reltol", "feastol", "max_iters"}),
         names=lambda: set(_ECOS_NAMES),
         status=_ecos_status,
         iterations=_dict_iter("iter"),
@@ -387,7 +370,6 @@ BACKENDS: dict[str, Backend] = {
     ),
     "cvxopt": Backend(
         settings=lambda t, it, tl: _opt(abstol=t, reltol=t, feastol=t, maxiters=it),
-        mapped=frozenset({"abstol", "reltol", "feastol", "maxiters"}),
         names=None,
         status=_cvxopt_status,
         iterations=_dict_iter("iterations"),
@@ -395,7 +377,6 @@ BACKENDS: dict[str, Backend] = {
     ),
     "qpalm": Backend(
         settings=lambda t, it, tl: _opt(eps_abs=t, eps_rel=t, max_iter=it),
-        mapped=frozenset({"eps_abs", "eps_rel", "max_iter"}),
         names=_qpalm_names,
         status=_qpalm_status,
         iterations=_info_iter,
@@ -408,11 +389,10 @@ BACKENDS: dict[str, Backend] = {
             BarConvTol=t,
             TimeLimit=tl,
         ),
-        mapped=frozenset({"OptimalityTol", "FeasibilityTol", "BarConvTol", "TimeLimit"}),
         names=_gurobi_names,
         status=_gurobi_status,
         floor=1e-9,
     ),
 }
 #: A backend qpsolvers has and this table does not: native defaults, one solve.
-GENERIC = Backend(settings=lambda t, it, tl: {}, mapped=frozenset(), names=None, floor=None)
+GENERIC = Backend(settings=lambda t, it, tl: {}, names=None, floor=None)
