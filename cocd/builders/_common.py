@@ -50,6 +50,11 @@ def uniform_radii(n: int, d_mean: float, poly: float, rng: np.random.Generator) 
     return np.asarray(0.5 * d_mean * u / u.mean(), dtype=np.float64)
 
 
+def radii_up_to(r_max: float, poly: float, n: int, rng: np.random.Generator) -> FloatArray:
+    """Radii uniform in ``r (1 -+ poly / 2)`` with ``r (1 + poly / 2) = r_max``."""
+    return np.asarray(r_max / (1.0 + poly / 2.0) * (1.0 + poly * (rng.random(n) - 0.5)))
+
+
 def mean_grain_volume(dim: int, d_mean: float, poly: float) -> float:
     """Mean grain area (2D) or volume (3D) for radii uniform in ``r (1 -+ poly / 2)``."""
     r = d_mean / 2.0

@@ -18,6 +18,7 @@ from cocd.builders._common import (
     lattice_size,
     loose_lattice,
     mean_grain_volume,
+    radii_up_to,
     rain_size,
     set_groups,
     uniform_radii,
@@ -77,9 +78,7 @@ def column_2d(
     spacing = width * np.sqrt(2.0 * aspect / (np.sqrt(3.0) * n))
     cols = max(1, int(np.floor(width / spacing)))
     r_max = spacing / (2.0 * 1.02)
-    r_mean = r_max / (1.0 + polydispersity / 2.0)
-    rng = np.random.default_rng(seed)
-    radii = r_mean * (1.0 + polydispersity * (rng.random(n) - 0.5))
+    radii = radii_up_to(r_max, polydispersity, n, np.random.default_rng(seed))
 
     k = np.arange(n)
     row, col = k // cols, k % cols
@@ -168,9 +167,7 @@ def box_3d(
     k = np.arange(n)
     ix, iy, iz = k % side, (k // side) % side, k // (side * side)
     positions = (np.stack([ix, iy, iz], axis=1) + 0.5) * spacing
-    rng = np.random.default_rng(seed)
-    r_max = diameter / 2.0
-    radii = r_max / (1 + polydispersity / 2) * (1.0 + polydispersity * (rng.random(n) - 0.5))
+    radii = radii_up_to(diameter / 2.0, polydispersity, n, np.random.default_rng(seed))
     walls = [
         Wall((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
         Wall((0.0, 0.0, 0.0), (1.0, 0.0, 0.0)),
