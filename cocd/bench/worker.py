@@ -31,6 +31,8 @@ __all__ = ["Outcome", "Worker"]
 #: Outcome statuses: the job returned; it overran ``limit`` or ``silence``; it used up
 #: ``budget``; it raised, or the child died.
 DONE, TIME_LIMIT, BUDGET, ERROR = "done", "time_limit", "budget", "error"
+#: Seconds a new child may take to start (spawn and imports) before its job's clocks start.
+STARTUP_S = 300.0
 
 
 @dataclass
@@ -65,6 +67,7 @@ def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
         if item is None:
             return
         job, args = item
+        answers.put(("start", None))
         try:
             answers.put(("done", job(emit, *args)))
         except MemoryError:
@@ -126,7 +129,8 @@ class Worker:
         """Run ``job(emit, *args)`` in the child and wait for it.
 
         ``limit``: seconds for the whole job; ``silence``: the most seconds
-        between two messages of the job (both end it as ``time_limit``);
+        between two messages of the job (both end it as ``time_limit``; both count
+        from when the child takes the job, so a new child's start-up is not counted);
         ``budget``: seconds after which the job is stopped as ``budget``, its
         events kept. ``on_event`` receives each event as it arrives.
         """
@@ -139,15 +143,19 @@ class Worker:
         self._jobs.put((job, args))
         out = Outcome(status=ERROR)
         start = last = time.perf_counter()
+        started = False  # the job's clocks start when the child takes it
         limit = math.inf if limit is None else limit
         silence = math.inf if silence is None else silence
         budget = math.inf if budget is None else budget
         try:
             while True:
                 now = time.perf_counter()
-                wait = min(
-                    1.0, limit - (now - start), silence - (now - last), budget - (now - start)
-                )
+                if started:
+                    wait = min(
+                        1.0, limit - (now - start), silence - (now - last), budget - (now - start)
+                    )
+                else:
+                    wait = min(1.0, STARTUP_S - (now - start))
                 try:
                     kind, body = self._answers.get(timeout=max(0.01, wait))
                 except queue_mod.Empty:
@@ -156,7 +164,11 @@ class Worker:
                     if not self._proc.is_alive():
                         self._died(out)
                         return out
-                    if out.elapsed > budget:
+                    if not started:
+                        if out.elapsed <= STARTUP_S:
+                            continue
+                        out.note = f"the child did not start in {STARTUP_S:g} s"
+                    elif out.elapsed > budget:
                         out.status, out.note = BUDGET, f"stopped after {out.elapsed:.0f} s"
                     elif out.elapsed > limit or out.silent > silence:
                         out.status, out.note = TIME_LIMIT, f"killed after {out.elapsed:.0f} s"
@@ -164,6 +176,10 @@ class Worker:
                         continue
                     self._kill()
                     return out
+                if kind == "start":
+                    start = last = time.perf_counter()
+                    started = True
+                    continue
                 last = time.perf_counter()
                 if kind == "event":
                     out.events.append(body)
@@ -189,6 +205,8 @@ class Worker:
                 break
             if kind == "event":
                 out.events.append(body)
+            elif kind == "start":
+                continue
             elif kind == "done":
                 out.status, out.result = DONE, body
             else:
