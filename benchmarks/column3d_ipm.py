@@ -34,8 +34,8 @@ import cocd
 import solvers
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.states import record_steps
-from cocd.studies.table1 import CHANNEL_WIDTH, D_SEED_3D, DT_3D, MU_3D, SEED_N_3D
 from cocd.residuals import ccp_residual
+from cocd.studies.table1 import CHANNEL_WIDTH, D_SEED_3D, DT_3D, MU_3D, SEED_N_3D
 
 
 def step_problem(n: int, tol: float, t_start: float) -> tuple[cocd.ConicProblem, int]:

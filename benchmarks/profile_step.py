@@ -22,10 +22,10 @@ import time
 from functools import partial
 
 import solvers
-from cocd.studies import table1
 from cocd.bench.states import record_steps
 from cocd.builders import column_2d
 from cocd.residuals import ccp_residual
+from cocd.studies import table1
 
 
 def main() -> None:

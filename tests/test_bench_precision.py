@@ -11,11 +11,17 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from cocd.bench.metrics import performance_profile, performance_ratios, shifted_geometric_mean
+from cocd.bench.metrics import (
+    costs_to_target,
+    performance_profile,
+    performance_ratios,
+    sgm_table,
+    shifted_geometric_mean,
+)
 from cocd.bench.runner import ROW_COLUMNS
 from cocd.errors import CocdError
 from cocd.studies import precision
-from cocd.studies.precision import costs_to_target, sgm_table, with_cold_runs_as_warm
+from cocd.studies.precision import with_cold_runs_as_warm
 
 INF = math.inf
 

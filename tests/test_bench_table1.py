@@ -13,7 +13,7 @@ from cocd.bench import runner
 from cocd.bench.states import StepSequence
 from cocd.cli import app
 from cocd.errors import CocdError
-from cocd.studies import table1
+from cocd.studies import _table1_report, table1
 
 # Scale 0.001 gives columns of 20 and 51 discs (the seed's 1109 and 8308 fall under the
 # 20-disc floor, 20488 rounds to 20, 50772 to 51).
@@ -92,7 +92,7 @@ def test_fastest_backend_needs_every_step_optimal():
             {**mine, "N": 200, "solver": "clarabel", "steps_ok": "0/0", "time_per_step_s": nan},
         ]
     )
-    assert table1._fastest(table) == [
+    assert _table1_report.fastest(table) == [
         "- 100 discs, eps 1e-08: ipm, 0.5 s per step; clarabel 2 s (4 times as long)",
         "- 200 discs, eps 1e-08: no backend solved every step to optimal",
     ]

@@ -7,7 +7,7 @@ Pure functions of numbers and tables; they read and write no files.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -18,10 +18,15 @@ from cocd.errors import CocdError
 
 __all__ = [
     "SGM_SHIFT",
+    "costs_to_target",
+    "finite",
+    "finite_max",
+    "finite_mean",
     "fit_exponent",
     "fit_two_power_laws",
     "performance_profile",
     "performance_ratios",
+    "sgm_table",
     "shifted_geometric_mean",
     "table_profile",
 ]
@@ -184,3 +189,113 @@ def fit_two_power_laws(
         c_high=float(math.exp(c2)),
     )
     return out
+
+
+def finite(value: object) -> bool:
+    """Whether ``value`` is a finite number (None, text and NaN are not)."""
+    try:
+        return math.isfinite(float(value))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
+def finite_mean(rows: Sequence[Mapping[str, Any]], key: str) -> float:
+    """The mean of ``row[key]`` over the rows where it is a finite number (NaN if none)."""
+    values = [float(r[key]) for r in rows if finite(r.get(key))]
+    return float(np.mean(values)) if values else math.nan
+
+
+def finite_max(rows: Sequence[Mapping[str, Any]], key: str) -> float:
+    """The largest ``row[key]`` over the rows where it is a finite number (NaN if none)."""
+    values = [float(r[key]) for r in rows if finite(r.get(key))]
+    return max(values) if values else math.nan
+
+
+def costs_to_target(
+    rows: pd.DataFrame,
+    target: float,
+    instances: Sequence[tuple[str, str]],
+    solver_names: Sequence[str],
+    time_limit: float,
+) -> FloatArray:
+    """Cost of each solver on each instance: its fastest run that reached ``target``.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Runs with columns ``problem``, ``start``, ``solver``, ``wall_s`` and
+        ``ccp_residual``.
+    target : float
+        A run reaches it when ``ccp_residual <= target``.
+    instances : sequence of (problem, start)
+    solver_names : sequence of str
+    time_limit : float
+        A run longer than this does not count (it would have been stopped).
+
+    Returns
+    -------
+    (n_instances, n_solvers) array
+        Smallest ``wall_s`` among the runs that reached the target, ``inf``
+        when none did.
+    """
+    costs = np.full((len(instances), len(solver_names)), np.inf)
+    ok = (rows["ccp_residual"] <= target) & (rows["wall_s"] <= time_limit)
+    good = rows[ok]
+    best = good.groupby(["problem", "start", "solver"])["wall_s"].min()
+    for i, (problem, start) in enumerate(instances):
+        for s, name in enumerate(solver_names):
+            key = (problem, start, name)
+            if key in best.index:
+                costs[i, s] = float(best[key])
+    return costs
+
+
+def sgm_table(
+    costs: dict[float, FloatArray],
+    solver_names: Sequence[str],
+    time_limit: float,
+    shift: float = SGM_SHIFT,
+) -> pd.DataFrame:
+    """Shifted geometric mean of the time to reach each target, per solver.
+
+    Parameters
+    ----------
+    costs : dict target -> (n_instances, n_solvers) array
+        From :func:`costs_to_target`; ``inf`` (not reached) counts as
+        ``time_limit``.
+    solver_names : sequence of str
+    time_limit : float
+    shift : float
+
+    Returns
+    -------
+    DataFrame
+        Columns ``target``, ``solver``, ``solved`` (instances that reached the
+        target), ``instances``, ``sgm_s`` (seconds) and ``sgm_rel`` (over the
+        best solver's ``sgm_s`` for that target, so the best is 1.0); sorted by
+        target (loosest first) then ``sgm_rel``. ``sgm_rel`` is NaN for a
+        target no solver reached on any instance.
+    """
+    records: list[dict[str, Any]] = []
+    for target, c in costs.items():
+        charged = np.where(np.isfinite(c), c, time_limit)
+        means = [shifted_geometric_mean(charged[:, s], shift) for s in range(len(solver_names))]
+        # With no instance reached by anyone every mean is the time limit:
+        # a ratio of 1.0 would read as a tie of winners, not of failures.
+        anyone = bool(np.isfinite(c).any())
+        best = min(means, default=np.nan) if anyone else np.nan
+        for s, name in enumerate(solver_names):
+            records.append(
+                {
+                    "target": target,
+                    "solver": name,
+                    "solved": int(np.isfinite(c[:, s]).sum()),
+                    "instances": int(c.shape[0]),
+                    "sgm_s": means[s],
+                    "sgm_rel": means[s] / best if best > 0 else (1.0 if anyone else np.nan),
+                }
+            )
+    table = pd.DataFrame(
+        records, columns=["target", "solver", "solved", "instances", "sgm_s", "sgm_rel"]
+    )
+    return table.sort_values(["target", "sgm_rel"], ascending=[False, True], kind="stable")

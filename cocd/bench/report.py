@@ -14,10 +14,13 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import os
 import platform
 import shlex
 import sys
+import time
+from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -33,6 +36,7 @@ __all__ = [
     "machine_info",
     "machine_line",
     "previous_table",
+    "throttled",
     "write_meta",
     "write_readme",
     "write_table",
@@ -270,3 +274,23 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
     readme = out / "README.md"
     readme.write_text("\n".join(lines).rstrip() + "\n")
     return readme
+
+
+def throttled(
+    progress: Callable[[str], Any],
+    seconds: float,
+    always: Callable[[str], bool] = lambda line: False,
+) -> Callable[[str], None]:
+    """``progress`` for the first line, then at most once every ``seconds`` (and for the
+    lines ``always`` keeps): recording a trajectory reports every step, and tens of
+    lines a second would bury the runs' results."""
+    last = -math.inf
+
+    def say(line: str) -> None:
+        nonlocal last
+        now = time.perf_counter()
+        if always(line) or now - last >= seconds:
+            last = now
+            progress(line)
+
+    return say

@@ -67,11 +67,13 @@ import solvers as backends
 from cocd.bench import estimate, select_solvers, study
 from cocd.bench.metrics import (
     SGM_SHIFT,
+    costs_to_target,
     performance_profile,
     performance_ratios,
+    sgm_table,
     shifted_geometric_mean,
 )
-from cocd.bench.report import write_meta, write_table
+from cocd.bench.report import throttled, write_meta, write_table
 from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
 from cocd.bench.study import option
@@ -80,6 +82,7 @@ from cocd.errors import CocdError
 from cocd.problem import ConicProblem
 from cocd.residuals import ccp_residual
 from cocd.scene import Scene
+from cocd.studies._plots import STARTS, TARGETS, plot_precision, plot_profiles
 
 __all__ = [
     "COLUMNS",
@@ -96,8 +99,6 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-#: Accuracy targets on ``ccp_residual`` of the profiles and geometric means.
-TARGETS = (1e-4, 1e-6, 1e-8)
 #: The reference answer's tolerance, and the accuracy it must reach to be
 #: trusted as the zero of ``u_error``.
 REFERENCE_TOL = 1e-10
@@ -112,7 +113,6 @@ COLUMNS = ["problem", "dim", "N", "Nc", "dt", "start", "solver", "tol"] + [
     c for c in ROW_COLUMNS if c != "solver"
 ]
 
-_STARTS = ("cold", "warm")
 #: Runs whose child was killed, i.e. the next job starts in a fresh process.
 _KILLED = ("killed", "child exited")
 
@@ -143,96 +143,6 @@ class _Instance:
     ref_solver: str
     #: Two copies of ``problem`` with no cached data, alternated between jobs.
     copies: tuple[ConicProblem, ConicProblem]
-
-
-def costs_to_target(
-    rows: pd.DataFrame,
-    target: float,
-    instances: Sequence[tuple[str, str]],
-    solver_names: Sequence[str],
-    time_limit: float,
-) -> FloatArray:
-    """Cost of each solver on each instance: its fastest run that reached ``target``.
-
-    Parameters
-    ----------
-    rows : DataFrame
-        Runs with columns ``problem``, ``start``, ``solver``, ``wall_s`` and
-        ``ccp_residual``.
-    target : float
-        A run reaches it when ``ccp_residual <= target``.
-    instances : sequence of (problem, start)
-    solver_names : sequence of str
-    time_limit : float
-        A run longer than this does not count (it would have been stopped).
-
-    Returns
-    -------
-    (n_instances, n_solvers) array
-        Smallest ``wall_s`` among the runs that reached the target, ``inf``
-        when none did.
-    """
-    costs = np.full((len(instances), len(solver_names)), np.inf)
-    ok = (rows["ccp_residual"] <= target) & (rows["wall_s"] <= time_limit)
-    good = rows[ok]
-    best = good.groupby(["problem", "start", "solver"])["wall_s"].min()
-    for i, (problem, start) in enumerate(instances):
-        for s, name in enumerate(solver_names):
-            key = (problem, start, name)
-            if key in best.index:
-                costs[i, s] = float(best[key])
-    return costs
-
-
-def sgm_table(
-    costs: dict[float, FloatArray],
-    solver_names: Sequence[str],
-    time_limit: float,
-    shift: float = SGM_SHIFT,
-) -> pd.DataFrame:
-    """Shifted geometric mean of the time to reach each target, per solver.
-
-    Parameters
-    ----------
-    costs : dict target -> (n_instances, n_solvers) array
-        From :func:`costs_to_target`; ``inf`` (not reached) counts as
-        ``time_limit``.
-    solver_names : sequence of str
-    time_limit : float
-    shift : float
-
-    Returns
-    -------
-    DataFrame
-        Columns ``target``, ``solver``, ``solved`` (instances that reached the
-        target), ``instances``, ``sgm_s`` (seconds) and ``sgm_rel`` (over the
-        best solver's ``sgm_s`` for that target, so the best is 1.0); sorted by
-        target (loosest first) then ``sgm_rel``. ``sgm_rel`` is NaN for a
-        target no solver reached on any instance.
-    """
-    records: list[dict[str, Any]] = []
-    for target, c in costs.items():
-        charged = np.where(np.isfinite(c), c, time_limit)
-        means = [shifted_geometric_mean(charged[:, s], shift) for s in range(len(solver_names))]
-        # With no instance reached by anyone every mean is the time limit:
-        # a ratio of 1.0 would read as a tie of winners, not of failures.
-        anyone = bool(np.isfinite(c).any())
-        best = min(means, default=np.nan) if anyone else np.nan
-        for s, name in enumerate(solver_names):
-            records.append(
-                {
-                    "target": target,
-                    "solver": name,
-                    "solved": int(np.isfinite(c[:, s]).sum()),
-                    "instances": int(c.shape[0]),
-                    "sgm_s": means[s],
-                    "sgm_rel": means[s] / best if best > 0 else (1.0 if anyone else np.nan),
-                }
-            )
-    table = pd.DataFrame(
-        records, columns=["target", "solver", "solved", "instances", "sgm_s", "sgm_rel"]
-    )
-    return table.sort_values(["target", "sgm_rel"], ascending=[False, True], kind="stable")
 
 
 def with_cold_runs_as_warm(rows: pd.DataFrame, warm_capable: set[str]) -> pd.DataFrame:
@@ -374,14 +284,14 @@ def run(
     names = list(dict.fromkeys(n for i in instances for n in chosen[i.label]))
     warm_capable_set = {n for n in names if backends.get(n).warm_start}
     analysed = with_cold_runs_as_warm(table, warm_capable_set)
-    keys = [(i.label, s) for i in instances for s in _STARTS]
+    keys = [(i.label, s) for i in instances for s in STARTS]
     costs = {
         target: costs_to_target(analysed, target, keys, names, time_limit) for target in TARGETS
     }
     sgm = _sgm_by_problems(analysed, instances, chosen, names, time_limit)
     for inst in instances:
-        files.append(_plot_precision(analysed, inst, names, warm_capable_set, out))
-    files.append(_plot_profiles(costs, names, len(keys), out))
+        files.append(plot_precision(analysed, inst, names, warm_capable_set, out))
+    files.append(plot_profiles(costs, names, len(keys), out))
 
     intro = _intro(instances, names, time_limit)
     title = "Speed against error: work-precision, performance profiles, geometric means"
@@ -413,7 +323,7 @@ def _sgm_by_problems(
             groups.append((f"{dim}D", insts, who))
     tables = []
     for label, insts, who in groups:
-        keys = [(i.label, s) for i in insts for s in _STARTS]
+        keys = [(i.label, s) for i in insts for s in STARTS]
         costs = {t: costs_to_target(rows, t, keys, who, time_limit) for t in TARGETS}
         tables.append(sgm_table(costs, who, time_limit).assign(problems=label))
     table = pd.concat(tables, ignore_index=True)
@@ -463,7 +373,7 @@ def _instance(case: _Case, progress: Callable[[str], None]) -> _Instance:
         dt=case.dt,
         t_start=case.t_start,
         n_steps=2,
-        progress=_throttled(progress, 5.0),
+        progress=throttled(progress, 5.0),
     )
     problem = seq.problems[-1]
     progress(
@@ -525,24 +435,6 @@ def _reference(problem: ConicProblem, label: str, progress: Callable[[str], None
             f"{best.ccp:.2g} > {REFERENCE_OK:g}; u_error below about that is not meaningful"
         )
     return best
-
-
-def _throttled(progress: Callable[[str], None], seconds: float) -> Callable[[str], None]:
-    """``progress`` for the first line and then at most once every ``seconds``.
-
-    Recording a trajectory reports every step; tens of lines a second would
-    bury the runs' results.
-    """
-    last = -math.inf
-
-    def say(line: str) -> None:
-        nonlocal last
-        now = time.perf_counter()
-        if now - last >= seconds:
-            last = now
-            progress(line)
-
-    return say
 
 
 def _pristine(problem: ConicProblem) -> ConicProblem:
@@ -615,7 +507,7 @@ class _Jobs:
 def _starts(inst: _Instance, name: str) -> list[str]:
     """Cold always; warm only for a backend that uses a warm start, when there is one."""
     if backends.get(name).warm_start and inst.warm_start is not None:
-        return list(_STARTS)
+        return list(STARTS)
     return ["cold"]
 
 
@@ -683,136 +575,6 @@ def _nonconvex_note(names: Sequence[str]) -> str:
         "another problem: their `ccp_residual` stops at the distance between the two answers "
         "(their `coulomb_residual` is in `precision.csv`)."
     )
-
-
-# -- plots --------------------------------------------------------------------
-def _plot_precision(
-    rows: pd.DataFrame,
-    inst: _Instance,
-    names: Sequence[str],
-    warm_capable: set[str],
-    out: Path,
-) -> Path:
-    """Wall time against ccp_residual (top) and u_error (bottom), cold and warm."""
-    from matplotlib.figure import Figure
-    from matplotlib.ticker import FuncFormatter
-
-    fig = Figure(figsize=(11, 8.5), layout="constrained")
-    axes = fig.subplots(2, 2, sharey=True)
-    data = rows[rows["problem"] == inst.label]
-    colours = _colours(names)
-    # Seconds read as plain numbers (0.2, 5), not 5 x 10^0; over more than a
-    # decade only 1, 2 and 5 of each, so that the labels do not overlap.
-    walls = data["wall_s"][data["wall_s"] > 0]
-    wide = walls.size > 0 and walls.max() > 10.0 * walls.min()
-    digits = (1, 2, 5) if wide else tuple(range(1, 10))
-    seconds = FuncFormatter(partial(_seconds_label, digits=digits))
-    for col, start in enumerate(_STARTS):
-        for row_k, error in enumerate(("ccp_residual", "u_error")):
-            ax = axes[row_k, col]
-            plotted = False
-            for name in names:
-                runs = data[(data["solver"] == name) & (data["start"] == start)]
-                runs = runs[np.isfinite(runs[error]) & (runs[error] > 0) & (runs["wall_s"] > 0)]
-                if runs.empty:
-                    continue
-                runs = runs.sort_values("tol", ascending=False)
-                borrowed = start == "warm" and name not in warm_capable
-                ax.plot(
-                    runs[error],
-                    runs["wall_s"],
-                    marker="o",
-                    markersize=4,
-                    linestyle="--" if borrowed else "-",
-                    markerfacecolor="none" if borrowed else colours[name],
-                    color=colours[name],
-                )
-                plotted = True
-            if error == "ccp_residual":
-                ax.set_title(f"{start} start")
-            if plotted:
-                ax.set_xscale("log")
-                ax.set_yscale("log")
-                ax.yaxis.set_major_formatter(seconds)
-                ax.yaxis.set_minor_formatter(seconds)
-                ax.grid(True, which="major", alpha=0.3)
-                if error == "ccp_residual":
-                    for target in TARGETS:
-                        ax.axvline(target, color="grey", linestyle=":", linewidth=0.8)
-            else:
-                # A log axis with nothing on it has no limits to draw.
-                ax.text(0.5, 0.5, "no answers", transform=ax.transAxes, ha="center")
-            ax.set_xlabel(f"{error} (log scale; left is more accurate)")
-            if col == 0:
-                ax.set_ylabel("wall time per solve (s, log scale)")
-    _legend(fig, names, colours, dashed="dashed, hollow: no warm start (its cold runs)")
-    fig.suptitle(
-        f"{inst.label}: {inst.dim}D, N = {inst.n_free}, Nc = {inst.problem.nc}, dt = {inst.dt:g} s "
-        f"(one point per tolerance; dotted: targets {', '.join(f'{t:g}' for t in TARGETS)})"
-    )
-    path = out / f"precision_{inst.label}.png"
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _plot_profiles(
-    costs: dict[float, FloatArray], names: Sequence[str], n_instances: int, out: Path
-) -> Path:
-    """One Dolan-Moré profile panel per target."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(4.6 * len(costs), 4.4), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(1, len(costs), sharey=True))
-    colours = _colours(names)
-    for ax, (target, c) in zip(axes, costs.items(), strict=True):
-        ratios = performance_ratios(c)
-        finite = ratios[np.isfinite(ratios)]
-        top = max(10.0, 2.0 * float(finite.max())) if finite.size else 10.0
-        taus = np.geomspace(1.0, top, 400)
-        profile = performance_profile(c, taus)
-        for s, name in enumerate(names):
-            ax.plot(taus, profile[:, s], drawstyle="steps-post", color=colours[name], lw=1.5)
-        ax.set_xscale("log")
-        ax.set_ylim(-0.02, 1.02)
-        ax.set_xlim(1.0, top)
-        ax.grid(True, alpha=0.3)
-        ax.set_title(f"ccp_residual <= {target:g} ({n_instances} instances)")
-        ax.set_xlabel("tau: time over the best solver's time (log scale)")
-    axes[0].set_ylabel("fraction of instances within tau of the best")
-    _legend(fig, names, colours)
-    fig.suptitle("Performance profiles (Dolan-Moré): higher and further left is better")
-    path = out / "precision_profile.png"
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _seconds_label(value: float, _pos: object = None, *, digits: Sequence[int] = (1, 2, 5)) -> str:
-    """``value`` as ``%g`` when its leading digit is one of ``digits``, else no label."""
-    if not value > 0:
-        return ""
-    leading = value / 10.0 ** math.floor(math.log10(value) + 1e-9)
-    return f"{value:g}" if min(abs(leading - k) for k in digits) < 1e-6 else ""
-
-
-def _legend(fig: Any, names: Sequence[str], colours: dict[str, Any], dashed: str = "") -> None:
-    """One legend for every panel, under them, so that it hides no curve."""
-    from matplotlib.lines import Line2D
-
-    handles = [Line2D([], [], color=colours[n], marker="o", markersize=4) for n in names]
-    labels = list(names)
-    if dashed:
-        handles.append(
-            Line2D([], [], color="black", linestyle="--", marker="o", markerfacecolor="none")
-        )
-        labels.append(dashed)
-    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 6), fontsize=9)
-
-
-def _colours(names: Sequence[str]) -> dict[str, Any]:
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10" if len(names) <= 10 else "tab20"]
-    return {name: cmap(k % cmap.N) for k, name in enumerate(names)}
 
 
 STUDY = study.register(

@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from cocd.bench import estimate, select_solvers, study
-from cocd.bench.metrics import fit_exponent
+from cocd.bench.metrics import finite_max, finite_mean, fit_exponent
 from cocd.bench.report import previous_table, write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import record_steps
@@ -264,10 +264,10 @@ def run(
                         "warm": start,
                         "solver": name,
                         "steps_ok": f"{sum(a['status'] == 'optimal' for a in answers)}/{steps}",
-                        "iterations": _mean(ok, "iterations"),
-                        "time_per_step_s": _mean(ok, "wall_s"),
-                        "ccp_residual": _max(answers, "ccp_residual"),
-                        "peak_rss_gib": _max(answers, "peak_rss_gib"),
+                        "iterations": finite_mean(ok, "iterations"),
+                        "time_per_step_s": finite_mean(ok, "wall_s"),
+                        "ccp_residual": finite_max(answers, "ccp_residual"),
+                        "peak_rss_gib": finite_max(answers, "peak_rss_gib"),
                         "note": "; ".join([*bad, *notes])[:200],
                     }
                 )
@@ -342,16 +342,6 @@ def _table1_rows(path: Path, solvers: str | list[str] | None) -> list[dict[str, 
         }
         for _, r in t1.iterrows()
     ]
-
-
-def _mean(rows: list[dict[str, Any]], key: str) -> float:
-    values = [float(r[key]) for r in rows if r.get(key) is not None and np.isfinite(r[key])]
-    return float(np.mean(values)) if values else float("nan")
-
-
-def _max(rows: list[dict[str, Any]], key: str) -> float:
-    values = [float(r[key]) for r in rows if r.get(key) is not None and np.isfinite(r[key])]
-    return float(np.max(values)) if values else float("nan")
 
 
 def fits(table: pd.DataFrame) -> pd.DataFrame:

@@ -39,14 +39,28 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from cocd.bench import estimate, report, select_solvers, study
+from cocd.bench import estimate, select_solvers, study
 from cocd.bench.study import option
 from cocd.bench.worker import Worker
 from cocd.builders import static_box
 from cocd.errors import CocdError
 from cocd.scene import Scene
+from cocd.studies._stability_report import (
+    BUDGET_NOTE,
+    stability_thresholds,
+    write_stability,
+    write_thresholds,
+)
 
-__all__ = ["SERIES_COLUMNS", "SUMMARY_COLUMNS", "floor_reference", "run"]
+__all__ = [
+    "SERIES_COLUMNS",
+    "STUDY",
+    "SUMMARY_COLUMNS",
+    "Settings",
+    "floor_reference",
+    "run",
+    "stability_thresholds",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -82,8 +96,6 @@ SUMMARY_COLUMNS = [
     "note",
 ]
 
-#: How a run stopped by its wall-time budget is noted.
-BUDGET_NOTE = "run budget"
 
 #: Seconds allowed on top of ``1.5 time_limit`` between two messages of a child
 #: (its start-up, the imports and the first contact detection included) before
@@ -238,8 +250,10 @@ def run(
 
     table = pd.DataFrame(summary, columns=SUMMARY_COLUMNS)
     steps_table = pd.DataFrame(series, columns=SERIES_COLUMNS)
-    files = _write(out, table, steps_table, threshold, dim, scene.n_free, height, period, dt)
-    files += _write_thresholds(out, table, threshold, dim, t_end, dt)
+    files = write_stability(
+        out, table, steps_table, threshold, dim, scene.n_free, height, period, dt
+    )
+    files += write_thresholds(out, table, threshold, dim, t_end, dt)
     progress(f"stability: wrote {', '.join(str(f) for f in files)}")
     return table
 
@@ -471,185 +485,6 @@ def _check(
     if not (grace >= 0.0):
         raise CocdError(f"grace must be >= 0, got {grace!r}")
     return eps_values
-
-
-def _write(
-    out: Path,
-    table: pd.DataFrame,
-    steps: pd.DataFrame,
-    threshold: float,
-    dim: int,
-    n_free: int,
-    height: float,
-    period: float,
-    dt: float,
-) -> list[Path]:
-    out.mkdir(parents=True, exist_ok=True)
-    series_path = out / "stability.csv"
-    steps.to_csv(series_path, index=False)
-    shape = "discs in a 2D box" if dim == 2 else "spheres in a 3D box"
-    intro = (
-        f"{n_free} {shape}, settled by rain deposition and released at rest; "
-        f"packing height H = {height:.4g} m, T = sqrt(H/g) = {period:.4g} s, dt = {dt:g} s. "
-        f"`at_rest`: every asked step was taken and the ratio of kinetic to total energy "
-        f"Ek / (Ek + Ep), with Ep measured from the floor, stayed below the threshold "
-        f"**{threshold:g}**. Time per step is the backend's own set-up plus solve time; "
-        f"`max_ccp_residual` is the framework's residual (the same for every backend). "
-        f"The seed (Fig. 3, Mosek, 110 233 spheres) keeps the box at rest for eps <= 1e-3."
-    )
-    files = report.write_table(
-        out,
-        "stability_summary",
-        table,
-        title="Stability: a box at rest stays at rest (Fig. 3)",
-        intro=intro,
-    )
-    png = out / "stability.png"
-    _plot(png, table, steps, threshold, dim, n_free)
-    files = [series_path, *files, png]
-    report.write_meta(
-        out,
-        "stability",
-        title="Stability: a box at rest stays at rest (Fig. 3)",
-        files=files,
-        summary=_verdicts(table, threshold),
-    )
-    return [*files, out / "stability.meta.json"]
-
-
-def _write_thresholds(
-    out: Path, summary: pd.DataFrame, threshold: float, dim: int, t_end: float, dt: float
-) -> list[Path]:
-    """``stability_threshold``: per backend, the largest tolerance at rest (Fig. 3)."""
-    table = stability_thresholds(summary)
-    parts = []
-    for row in table.itertuples():
-        if math.isnan(row.largest_eps_at_rest):
-            parts.append(f"`{row.solver}` never")
-        else:
-            parts.append(f"`{row.solver}` {row.largest_eps_at_rest:g}")
-    n = summary.N.iloc[0] if len(summary) else 0
-    text = (
-        f"Largest tolerance at which a {dim}D box of {n} grains stays at rest "
-        f"(Ek/E < {threshold:g} over {t_end:g} sqrt(H/g), dt = {dt:g} s): **{', '.join(parts)}**. "
-        "The seed (Fig. 3, Mosek, 110 233 spheres) keeps its box at rest for eps <= 1e-3."
-    )
-    title = "Stability threshold per backend (Fig. 3)"
-    files = report.write_table(
-        out,
-        "stability_threshold",
-        table,
-        title=title,
-        intro="`largest_eps_at_rest`: the largest tolerance whose run stayed at rest; "
-        "`consistent`: every smaller tolerance that ran to its end was at rest too; "
-        "`unfinished`: tolerances stopped by their time budget or a failed step.",
-    )
-    report.write_meta(out, "stability_threshold", title=title, files=files, summary=text)
-    return [*files, out / "stability_threshold.meta.json"]
-
-
-def stability_thresholds(summary: pd.DataFrame) -> pd.DataFrame:
-    """Per backend of a stability summary: the largest tolerance at rest."""
-    rows = []
-    for solver, sub in summary.groupby("solver", sort=False):
-        sub = sub.sort_values("eps", ascending=False)
-        done = sub[sub.steps_done == sub.steps_asked]
-        rest = done[done.at_rest.astype(bool)]
-        largest = float(rest.eps.max()) if len(rest) else math.nan
-        below = done[done.eps <= largest] if len(rest) else done.iloc[0:0]
-        rows.append(
-            {
-                "solver": solver,
-                "largest_eps_at_rest": largest,
-                "consistent": bool(below.at_rest.astype(bool).all()) if len(rest) else False,
-                "unfinished": ", ".join(
-                    f"{e:g}" for e in sub.eps[sub.steps_done < sub.steps_asked]
-                ),
-            }
-        )
-    return pd.DataFrame(rows)
-
-
-def _verdicts(table: pd.DataFrame, threshold: float) -> str:
-    """A Markdown pivot: solver x eps, 'yes' / 'no' (max ratio) or 'failed at step k'."""
-    if table.empty:
-        return "No run."
-
-    def cell(row: pd.Series) -> str:
-        if row["note"] and row["steps_done"] < row["steps_asked"]:
-            if str(row["note"]).startswith(BUDGET_NOTE):
-                return f"budget spent at step {int(row['steps_done'])}"
-            return f"failed at step {int(row['steps_done']) + 1}"
-        word = "yes" if row["at_rest"] else "no"
-        return f"{word} ({row['max_energy_ratio']:.1e})"
-
-    cells = table.assign(
-        verdict=table.apply(cell, axis=1), eps_label=table["eps"].map(lambda e: f"{e:.0e}")
-    )
-    order = list(dict.fromkeys(cells["eps_label"]))
-    pivot = cells.pivot(index="solver", columns="eps_label", values="verdict")
-    pivot = pivot.reindex(index=list(dict.fromkeys(cells["solver"])), columns=order)
-    pivot.columns.name = None
-    text = pivot.reset_index().to_markdown(index=False)
-    return (
-        f"At rest (max Ek / (Ek + Ep) over the run below {threshold:g}; "
-        f"in brackets the max ratio), per solver and eps:\n\n{text}"
-    )
-
-
-def _plot(
-    path: Path,
-    table: pd.DataFrame,
-    steps: pd.DataFrame,
-    threshold: float,
-    dim: int,
-    n_free: int,
-) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib import colors
-    from matplotlib.lines import Line2D
-
-    names = list(dict.fromkeys(table["solver"])) or ["(none)"]
-    eps_all = sorted(set(table["eps"])) or [1.0]
-    ncols = min(3, len(names))
-    nrows = math.ceil(len(names) / ncols)
-    fig, axes = plt.subplots(
-        nrows, ncols, figsize=(4.2 * ncols, 3.2 * nrows), squeeze=False, sharey=True
-    )
-    norm = colors.LogNorm(vmin=min(eps_all), vmax=max(eps_all) * (1.0 + 1e-12))
-    cmap = plt.get_cmap("viridis")
-    for ax, name in zip(axes.flat, names, strict=False):
-        for eps in eps_all:
-            part = steps[(steps["solver"] == name) & (steps["eps"] == eps)]
-            if part.empty:
-                continue
-            # The log axis cannot show an exact zero; such points are masked.
-            y = part["energy_ratio"].to_numpy(dtype=np.float64)
-            y = np.where(y > 0.0, y, np.nan)
-            ax.plot(part["t_over_T"], y, color=cmap(norm(eps)), lw=1.2)
-            row = table[(table["solver"] == name) & (table["eps"] == eps)]
-            if not row.empty and row["steps_done"].iloc[0] < row["steps_asked"].iloc[0]:
-                ax.plot(part["t_over_T"].iloc[-1], y[-1], "x", color=cmap(norm(eps)), ms=7)
-        ax.axhline(threshold, color="crimson", ls="--", lw=1.0)
-        ax.set_yscale("log")
-        ax.set_title(name)
-        ax.set_xlabel("t / sqrt(H/g)")
-        ax.grid(True, which="major", alpha=0.3)
-    for ax in axes[:, 0]:
-        ax.set_ylabel("Ek / (Ek + Ep)")
-    for ax in list(axes.flat)[len(names) :]:
-        ax.set_visible(False)
-    # One legend for all panels, with every eps even if a panel lacks a curve.
-    handles = [Line2D([], [], color=cmap(norm(e)), label=f"{e:.0e}") for e in eps_all]
-    handles.append(Line2D([], [], color="crimson", ls="--", label="threshold"))
-    fig.legend(handles=handles, title="eps", loc="center right", fontsize=8)
-    fig.suptitle(f"Box at rest, {n_free} grains in {dim}D (x: run ended early)")
-    fig.tight_layout(rect=(0.0, 0.0, 0.9, 1.0))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 STUDY = study.register(

@@ -44,84 +44,64 @@ import pandas as pd
 
 import solvers
 from cocd.bench import estimate, select_solvers, study
-from cocd.bench.report import previous_table, write_meta, write_table
+from cocd.bench.metrics import finite_max, finite_mean
+from cocd.bench.report import previous_table, throttled
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, cache_path, record_steps
 from cocd.bench.study import option
 from cocd.builders import column_2d, column_collapse
 from cocd.errors import CocdError
 from cocd.scene import Scene
+from cocd.studies._table1_report import fmt, seed_rows, write_table1
+from cocd.studies._table1_setup import (
+    _LATER_COLUMNS,
+    CASE_2D,
+    CASE_3D,
+    CHANNEL_WIDTH,
+    COLUMNS,
+    D_SEED_2D,
+    D_SEED_3D,
+    DT_2D,
+    DT_3D,
+    EPS_2D,
+    EPS_3D,
+    MIN_GRAINS,
+    MU_3D,
+    PHASES,
+    PREP_TOL_3D,
+    SEED,
+    SEED_N_2D,
+    SEED_N_3D,
+    SEED_ROWS,
+    THIS_MACHINE,
+    TRAJECTORY_TOL,
+)
 
-__all__ = ["COLUMNS", "SEED_ROWS", "run"]
-
-#: Phases of a step's solve in the time breakdown (``t_<phase>_s``): the backend's
-#: set-up, and for ``ipm`` the assembly of the reduced system, its numerical
-#: factorisations, the triangular solves, the residual checks and the polish;
-#: ``other`` is the rest of the wall time (for most backends: all their iterations).
-PHASES = ("setup", "assemble", "factor", "solve", "check", "polish", "other")
-#: Columns an older table1.csv may lack; they are read as empty.
-_LATER_COLUMNS = frozenset({"factorisations", *(f"t_{phase}_s" for phase in PHASES)})
-
-#: Columns of ``table1.csv``, in order.
-COLUMNS = [
-    "source",
-    "case",
-    "dim",
-    "N",
-    "Nc",
-    "Nc_per_grain",
-    "d_max_r",
-    "dt",
-    "eps",
-    "solver",
-    "warm",
-    "steps_ok",
-    "iterations",
-    "time_per_step_s",
-    "ccp_residual",
-    "coulomb_residual",
-    "factorisations",
-    *(f"t_{phase}_s" for phase in PHASES),
-    "scale",
-    "note",
-]
-
-THIS_MACHINE = "this machine"
-SEED = "seed (Mosek, 2x8 cores)"
-CASE_2D = "variation of N"
-CASE_3D = "variation of mu"
-
-#: Disc counts of the seed's "variation of N" (its Fig. 5 and Table 1).
-SEED_N_2D = [1109, 8308, 20488, 50772]
-#: Sphere count of the seed's "variation of mu".
-SEED_N_3D = 122932
-#: Below this the column is too small to flow like a granular column.
-MIN_GRAINS = 20
-DT_2D, DT_3D = 1e-3, 1e-2
-EPS_2D = [1e-8]
-EPS_3D = [1e-8, 1e-5]
-MU_3D = 0.3
-CHANNEL_WIDTH = 0.2
-TRAJECTORY_TOL = 1e-8
-#: Tolerance of the 3D trajectory's steps before the first recorded one (the 2D
-#: ones use TRAJECTORY_TOL): 100 steps of a flowing column at 1e-8 take longer
-#: than every backend's solves together.
-PREP_TOL_3D = 1e-6
-
-#: Detection thresholds D of the two cases, in mean radii: the fixed thresholds at
-#: which the columns have the seed's potential contacts per grain at the start of
-#: the recorded steps (4.49 per disc for 8308 discs, 6.75 per sphere), measured on
-#: the 8308-disc column and the 1229-sphere one (1 % of the seed's)
-#: (``python benchmarks/seed_contacts.py``, ``results/seed_contacts.md``).
-D_SEED_2D = 1.63
-D_SEED_3D = 0.98
-
-#: Table 1 of the seed (DESIGN.md section 5): Mosek's interior point, cold, ten steps.
-SEED_ROWS: list[dict[str, Any]] = [
-    dict(case=CASE_2D, dim=2, N=8308, Nc=37331, dt=DT_2D, eps=1e-8, iterations=47, time=8.85),
-    dict(case=CASE_2D, dim=2, N=50772, Nc=238659, dt=DT_2D, eps=1e-8, iterations=61, time=51.9),
-    dict(case=CASE_3D, dim=3, N=122932, Nc=829505, dt=DT_3D, eps=1e-8, iterations=21, time=475.8),
-    dict(case=CASE_3D, dim=3, N=122932, Nc=829505, dt=DT_3D, eps=1e-5, iterations=11, time=269.9),
+#: The seed's set-up and the table's columns are this module's too.
+__all__ = [
+    "CASE_2D",
+    "CASE_3D",
+    "CHANNEL_WIDTH",
+    "COLUMNS",
+    "DT_2D",
+    "DT_3D",
+    "D_SEED_2D",
+    "D_SEED_3D",
+    "EPS_2D",
+    "EPS_3D",
+    "MIN_GRAINS",
+    "MU_3D",
+    "PHASES",
+    "PREP_TOL_3D",
+    "SEED",
+    "SEED_N_2D",
+    "SEED_N_3D",
+    "SEED_ROWS",
+    "STUDY",
+    "THIS_MACHINE",
+    "TRAJECTORY_TOL",
+    "Settings",
+    "run",
 ]
 
 #: Statuses for which the backend returned within its limits (timed and counted).
@@ -242,8 +222,8 @@ def run(
     start = time.perf_counter()
 
     def write() -> pd.DataFrame:
-        table = pd.DataFrame(_ordered(rows) + _seed_rows(), columns=COLUMNS)
-        _write(
+        table = pd.DataFrame(_ordered(rows) + seed_rows(), columns=COLUMNS)
+        write_table1(
             out,
             table,
             (scale, scale_3d),
@@ -382,7 +362,7 @@ def _case(
             solver=trajectory,
             tol=TRAJECTORY_TOL,
             prep_tol=prep_tol,
-            progress=_throttled(progress),
+            progress=throttled(progress, 10.0, always=lambda line: "recording" in line),
             d_max=d_max,
         )
     except CocdError as exc:
@@ -452,8 +432,8 @@ def _solver_rows(
         answers.append(row)
         progress(
             f"{label}: {name} eps {eps:g} step {k + 1}/{total}: {row['status']}, "
-            f"{_fmt(row.get('iterations'))} it, {_fmt(row.get('wall_s'), '.3g')} s, "
-            f"ccp {_fmt(row.get('ccp_residual'), '.2g')}"
+            f"{fmt(row.get('iterations'))} it, {fmt(row.get('wall_s'), '.3g')} s, "
+            f"ccp {fmt(row.get('ccp_residual'), '.2g')}"
         )
         if k == 0 and row["status"] in _FAILED:
             # The first problem is like the others: the rest would fail the same way.
@@ -522,195 +502,18 @@ def _summarise(
     return {
         "warm": "yes" if warm else "no",
         "steps_ok": f"{ok}/{total}",
-        "iterations": _mean(returned, "iterations"),
-        "time_per_step_s": _mean(returned, "wall_s"),
-        "ccp_residual": _max(answers, "ccp_residual"),
-        "coulomb_residual": _max(answers, "coulomb_residual"),
-        "factorisations": _mean(returned, "factorisations"),
+        "iterations": finite_mean(returned, "iterations"),
+        "time_per_step_s": finite_mean(returned, "wall_s"),
+        "ccp_residual": finite_max(answers, "ccp_residual"),
+        "coulomb_residual": finite_max(answers, "coulomb_residual"),
+        "factorisations": finite_mean(returned, "factorisations"),
         **{
-            f"t_{phase}_s": _mean([a.get("phases") or {} for a in returned], phase)
+            f"t_{phase}_s": finite_mean([a.get("phases") or {} for a in returned], phase)
             for phase in PHASES
         },
         "note": "; ".join(notes)[:300],
         "first_status": statuses[0] if statuses else "",
     }
-
-
-def _seed_rows() -> list[dict[str, Any]]:
-    return [
-        {
-            "source": SEED,
-            "case": r["case"],
-            "dim": r["dim"],
-            "N": r["N"],
-            "Nc": float(r["Nc"]),
-            "Nc_per_grain": float(r["Nc"]) / r["N"],
-            "d_max_r": np.nan,  # not given in the seed's text
-            "dt": r["dt"],
-            "eps": r["eps"],
-            "solver": "mosek",
-            "warm": "no",
-            "steps_ok": "",
-            "iterations": float(r["iterations"]),
-            "time_per_step_s": r["time"],
-            "ccp_residual": np.nan,
-            "coulomb_residual": np.nan,
-            "scale": 1.0,
-            "note": "seed Table 1 (Mosek interior point; Nc: potential contacts)",
-        }
-        for r in SEED_ROWS
-    ]
-
-
-# -- output -------------------------------------------------------------------
-def _write(
-    out: Path,
-    table: pd.DataFrame,
-    scales: tuple[float, float],
-    steps: int,
-    wanted: list[str],
-    trajectory: dict[int, str],
-    t_start_2d: float,
-    t_start_3d: float,
-    time_limit: float,
-) -> None:
-    title = "Table 1: iterations and time per step against N, dt and eps"
-    scale, scale_3d = scales
-    halves = []
-    if "2d" in wanted:
-        halves.append(
-            f"2D *{CASE_2D}*: columns of N discs (the seed's 1109, 8308, 20488, 50772 times "
-            f"{scale:g}, at least {MIN_GRAINS}; 20 cm wide, aspect 0.7), dt = {DT_2D:g} s, "
-            f"{steps} steps from t = {t_start_2d:g} s, trajectory by {trajectory[2]}."
-        )
-    if "3d" in wanted:
-        halves.append(
-            f"3D *{CASE_3D}*: a column of {SEED_N_3D} x {scale_3d:g} spheres (20 x 14 cm, "
-            "20 cm wide channel, rough bed) collapsing, "
-            f"mu = {MU_3D:g}, dt = {DT_3D:g} s, {steps} steps from t = {t_start_3d:g} s, "
-            f"trajectory by {trajectory[3]} (tol {PREP_TOL_3D:g} before t = {t_start_3d:g} s)."
-        )
-    intro = "\n".join(
-        [
-            f"N scaled by {_scales_text(scales, wanted)} for this 2-core machine "
-            "(the seed ran Mosek on 2 x 8 cores "
-            "at full size; its rows are at the bottom). Every backend solves the same "
-            f"recorded step problems (trajectory backends at tol {TRAJECTORY_TOL:g}); "
-            "eps is the tol handed to each backend, the residuals are the framework's "
-            "(`cocd.residuals`), max over the steps with an answer (optimal, inaccurate, "
-            "or the last iterate of a max_iter stop; failed steps have none), and "
-            "`steps_ok` counts the optimal ones. Contacts are detected with a fixed "
-            "threshold `d_max_r` (mean radii) that gives the seed's potential contacts per "
-            "grain (`Nc_per_grain`; the seed does not state its threshold). "
-            "Interior points start cold; backends "
-            "that take a warm start get the previous step's impulses (column `warm`). "
-            f"Time limit {time_limit:g} s per solve; time per step is the wall time of the "
-            "whole call (set-up included), averaged over the solves that returned.",
-            "",
-            *[f"- {h}" for h in halves],
-        ]
-    )
-    files = write_table(out, "table1", table, title=title, intro=intro)
-    key = [
-        "source",
-        "case",
-        "N",
-        "Nc",
-        "Nc_per_grain",
-        "eps",
-        "solver",
-        "steps_ok",
-        "iterations",
-        "time_per_step_s",
-        "ccp_residual",
-    ]
-    summary = f"N scaled by {_scales_text(scales, wanted)}.\n\n" + table[key].to_markdown(
-        index=False, floatfmt=".3g"
-    )
-    counts = _contact_counts(table)
-    if counts:
-        summary += "\n\nPotential contacts per grain:\n\n" + "\n".join(counts)
-    fastest = _fastest(table)
-    if fastest:
-        summary += "\n\nFastest backend with every step optimal:\n\n" + "\n".join(fastest)
-    breakdown = _breakdown(table)
-    if breakdown:
-        summary += "\n\n" + breakdown
-    write_meta(out, "table1", title=title, files=files, summary=summary)
-
-
-def _fastest(table: pd.DataFrame, reference: str = "clarabel") -> list[str]:
-    """One line per (dim, N, eps) of this machine: the fastest backend whose every step
-    was solved to ``optimal``, beside ``reference`` in the same run."""
-    mine = table[table["source"] == THIS_MACHINE]
-    lines = []
-    for (dim, n, eps), rows in mine.groupby(["dim", "N", "eps"], sort=True):
-        kind = "discs" if dim == 2 else "spheres"
-        head = f"- {n} {kind}, eps {eps:g}: "
-        done = rows[rows["steps_ok"].map(_all_optimal) & rows["time_per_step_s"].notna()]
-        if done.empty:
-            lines.append(head + "no backend solved every step to optimal")
-            continue
-        best = done.loc[done["time_per_step_s"].idxmin()]
-        line = head + f"{best['solver']}, {best['time_per_step_s']:.3g} s per step"
-        ref = rows[rows["solver"] == reference]
-        if best["solver"] != reference and not ref.empty:
-            r = ref.iloc[0]
-            t = r["time_per_step_s"]
-            if _all_optimal(r["steps_ok"]) and _finite(t):
-                ratio = float(t) / float(best["time_per_step_s"])
-                line += f"; {reference} {float(t):.3g} s ({ratio:.3g} times as long)"
-            else:
-                line += f"; {reference} {r['steps_ok']} optimal" + (
-                    f" at {float(t):.3g} s per step solved" if _finite(t) else ""
-                )
-        lines.append(line)
-    return lines
-
-
-def _all_optimal(steps_ok: object) -> bool:
-    """True for ``"k/k"`` with ``k > 0``."""
-    ok, _, total = str(steps_ok).partition("/")
-    return ok.isdigit() and ok == total and int(ok) > 0
-
-
-def _breakdown(table: pd.DataFrame) -> str:
-    """Where a step's time goes, for the rows whose backend times its phases (ipm)."""
-    phases = [f"t_{phase}_s" for phase in PHASES]
-    mine = table[(table["source"] == THIS_MACHINE) & table["t_factor_s"].notna()]
-    if mine.empty:
-        return ""
-    cols = ["N", "eps", "solver", "iterations", "factorisations", "time_per_step_s", *phases]
-    return "Time per step by phase (s; `t_other_s`: the rest of the wall time):\n\n" + mine[
-        cols
-    ].to_markdown(index=False, floatfmt=".3g")
-
-
-def _contact_counts(table: pd.DataFrame) -> list[str]:
-    """One line per size of this machine: Nc per grain and its threshold, beside the
-    seed's count where the seed has that size."""
-    seed = {(r["dim"], r["N"]): r["Nc"] / r["N"] for r in SEED_ROWS}
-    ours = table[(table.source == THIS_MACHINE) & table.Nc_per_grain.notna()]
-    lines = []
-    for (dim, n), rows in ours.groupby(["dim", "N"], sort=True):
-        kind = "discs" if dim == 2 else "spheres"
-        line = (
-            f"- {n} {kind}: {rows.Nc_per_grain.iloc[0]:.2f} "
-            f"(D = {rows.d_max_r.iloc[0]:g} mean radii)"
-        )
-        if (dim, n) in seed:
-            line += f"; the seed: {seed[dim, n]:.2f}"
-        lines.append(line)
-    return lines
-
-
-def _scales_text(scales: tuple[float, float], wanted: list[str]) -> str:
-    scale, scale_3d = scales
-    if scale == scale_3d or "3d" not in wanted:
-        return f"{scale:g}"
-    if "2d" not in wanted:
-        return f"{scale_3d:g}"
-    return f"{scale:g} (2D) and {scale_3d:g} (3D)"
 
 
 # -- helpers ------------------------------------------------------------------
@@ -746,41 +549,6 @@ def _trajectory_solver(name: str | None, dim: int) -> str:
     if dim == 3 and "clarabel-dual" in solvers.available():
         return "clarabel-dual"
     return "clarabel"
-
-
-def _throttled(progress: Callable[[str], None], every: float = 10.0) -> Callable[[str], None]:
-    """Pass recording lines on, and a preparation line at most every ``every`` seconds."""
-    last = -math.inf
-
-    def say(line: str) -> None:
-        nonlocal last
-        now = time.perf_counter()
-        if "recording" in line or now - last >= every:
-            last = now
-            progress(line)
-
-    return say
-
-
-def _mean(rows: list[dict[str, Any]], key: str) -> float:
-    values = [float(r[key]) for r in rows if _finite(r.get(key))]
-    return float(np.mean(values)) if values else math.nan
-
-
-def _max(rows: list[dict[str, Any]], key: str) -> float:
-    values = [float(r[key]) for r in rows if _finite(r.get(key))]
-    return max(values) if values else math.nan
-
-
-def _finite(value: object) -> bool:
-    try:
-        return math.isfinite(float(value))  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return False
-
-
-def _fmt(value: object, spec: str = ".0f") -> str:
-    return format(float(value), spec) if _finite(value) else "-"  # type: ignore[arg-type]
 
 
 STUDY = study.register(
