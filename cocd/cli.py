@@ -9,8 +9,6 @@ reproduces the seed papers' physics cases (:mod:`cocd.validate`).
 
 from __future__ import annotations
 
-import json
-import math
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -22,7 +20,9 @@ from rich.table import Table
 import solvers
 from cocd.bench.cli import bench_app, validate_app
 from cocd.errors import CocdError
-from cocd.exits import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_NOT_SOLVED, fail
+from cocd.exits import EXIT_INTERRUPTED, EXIT_NOT_SOLVED, fail
+from cocd.outputs import check_run_folder, writable_file
+from cocd.problem_cli import problem_app
 
 app = typer.Typer(
     rich_markup_mode=None,
@@ -32,12 +32,6 @@ app = typer.Typer(
 )
 app.add_typer(bench_app, name="bench")
 app.add_typer(validate_app, name="validate")
-problem_app = typer.Typer(
-    rich_markup_mode=None,
-    add_completion=False,
-    no_args_is_help=True,
-    help="Single-step problems from other tools: FCLib HDF5 and Siconos text files.",
-)
 app.add_typer(problem_app, name="problem")
 export_app = typer.Typer(
     rich_markup_mode=None,
@@ -172,7 +166,7 @@ def run(
             registry.get(backend)  # an unknown backend fails before any work
         folder = out if out is not None else Path("cocd-runs") / name
         source = str(scene) if scene is not None else "default scene"
-        _check_run_folder(folder, resume=resume, force=force)
+        check_run_folder(folder, resume=resume, force=force)
         fresh = not resume
         built = build_scene(config, source) if fresh else None  # bad parameters fail here
         rc = config.run
@@ -258,47 +252,6 @@ def _interrupted(
     typer.echo(f"interrupted at {where}; {kept}.", err=True)
     if path.exists():
         typer.echo(f"continue with: {shlex.join([*parts, '--resume'])}", err=True)
-
-
-def _check_run_folder(folder: Path, *, resume: bool, force: bool) -> None:
-    """Refuse, before any work, a run folder that would lose a run or cannot be written."""
-    from cocd.runs import RUN_FILE, existing_run
-
-    path = folder / RUN_FILE
-    if folder.exists() and not folder.is_dir():
-        raise CocdError(f"--out {folder} is a file, not a folder")
-    if resume and not path.exists():
-        raise CocdError(
-            f"no run to resume in {folder} (no {RUN_FILE}); leave out --resume to start one"
-        )
-    if path.exists() and not (resume or force):
-        raise CocdError(
-            f"{folder} already holds a run ({existing_run(path)}): "
-            "--resume continues it, --force replaces it"
-        )
-    writable_folder(folder, "--out")
-
-
-def writable_folder(folder: Path, what: str) -> None:
-    """Create ``folder`` (and its parents) or raise a one-line :class:`CocdError`."""
-    import tempfile
-
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".cocd-write-test-"):
-            pass
-    except FileExistsError:
-        raise CocdError(f"{what} {folder}: a file is in the way of the folder") from None
-    except OSError as exc:
-        reason = exc.strerror or type(exc).__name__
-        raise CocdError(f"{what} {folder} cannot be written: {reason}") from None
-
-
-def writable_file(path: Path, what: str) -> None:
-    """Check, before any work, that ``path`` can be written (its folder is created)."""
-    if path.is_dir():
-        raise CocdError(f"{what} {path} is a folder, not a file")
-    writable_folder(path.parent, what + " folder")
 
 
 class _ProgressDisplay:
@@ -601,89 +554,3 @@ def list_solvers() -> None:
             "yes" if name not in missing else f"no: {missing[name]}",
         )
     console.print(table)
-
-
-def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
-    """NaN and infinity as ``null`` (JSON has neither)."""
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
-
-
-@problem_app.command("info")
-def problem_info(
-    file: Annotated[Path, typer.Argument(help="FCLib .hdf5 or Siconos .dat file.")],
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-) -> None:
-    """Kind (local or global), sizes, friction and the Delassus operator's symmetry."""
-    from cocd.external import describe
-    from cocd.io import read_problem
-
-    try:
-        info = describe(read_problem(file))
-    except CocdError as exc:
-        fail(exc)
-        return
-    if as_json:
-        typer.echo(json.dumps(_jsonable(info)))
-        return
-    for key, value in info.items():
-        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
-        console.print(f"{key:>18}: {shown}", highlight=False)
-
-
-@problem_app.command("solve")
-def problem_solve(
-    file: Annotated[Path, typer.Argument(help="FCLib .hdf5 or Siconos .dat file.")],
-    solver: Annotated[str, typer.Option("--solver", help="Backend (see `cocd solvers`).")] = (
-        "clarabel"
-    ),
-    tol: Annotated[float, typer.Option("--tol", help="Backend tolerance.")] = 1e-8,
-    time_limit: Annotated[
-        float | None, typer.Option("--time-limit", help="Seconds for the backend.")
-    ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    save_solution: Annotated[
-        Path | None,
-        typer.Option(
-            "--save-solution",
-            help="Write the answer as .npz: r (impulses, normal first), u (local "
-            "velocities), v (generalized velocities, global problems).",
-        ),
-    ] = None,
-) -> None:
-    """Solve one problem with one backend; report cocd's residuals and the natural map error.
-
-    Exit status: 0 when the backend reports ``optimal``, 3 when it answered but
-    not to the tolerance (``max_iter``, ``inaccurate``, ``time_limit``), 2 on an
-    error (a bad file or option, a failed backend).
-    """
-    from cocd.external import solve_external
-    from cocd.io import read_problem
-
-    try:
-        if save_solution is not None:
-            writable_file(save_solution, "--save-solution")
-        problem = read_problem(file)
-        record, answer = solve_external(problem, solver, tol, time_limit=time_limit)
-    except CocdError as exc:
-        fail(exc)
-        return
-    if save_solution is not None:
-        if answer is None:
-            fail(CocdError(f"solver {solver!r} returned no usable impulses: nothing to save"))
-        else:
-            import numpy as np
-
-            arrays: dict[str, Any] = answer.arrays()
-            np.savez(save_solution, **arrays)
-    if as_json:
-        typer.echo(json.dumps(_jsonable(record)))
-    else:
-        for key, value in record.items():
-            shown = f"{value:.3e}" if isinstance(value, float) else str(value)
-            console.print(f"{key:>18}: {shown}", highlight=False)
-        if save_solution is not None:
-            console.print(f"wrote {save_solution}")
-    status = str(record.get("status", ""))
-    if status != "optimal":
-        typer.echo(f"not solved to tol {tol:g}: status {status}", err=True)
-        raise typer.Exit(code=EXIT_NOT_SOLVED if answer is not None else EXIT_ERROR)

@@ -105,3 +105,11 @@ def dataclasses_frozen(cls):
     import dataclasses
 
     return dataclasses.dataclass(frozen=True)(cls)
+
+
+def test_an_out_that_cannot_be_written_is_refused_before_any_work(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("mine")
+    result = runner.invoke(app, ["bench", "hard", "--out", str(blocker / "sub")])
+    assert result.exit_code == 2 and "--out" in result.output
+    assert "Traceback" not in result.output and blocker.read_text() == "mine"

@@ -29,6 +29,7 @@ import typer
 
 from cocd.errors import CocdError
 from cocd.exits import fail
+from cocd.outputs import writable_folder
 
 __all__ = [
     "Study",
@@ -278,6 +279,7 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
                 if kind is not None and value is not None:
                     value = parse_list(value, kind, _flag(f))
                 values[f.name] = value
+            writable_folder(where, "--out")
             study(study.settings(**values), out=where)
             typer.echo(f"wrote {where / 'README.md'}")
         except CocdError as exc:
