@@ -11,7 +11,7 @@ from __future__ import annotations
 import solvers
 from cocd.errors import SolverNotFound
 
-__all__ = ["DEFAULT_SOLVERS", "select_solvers"]
+__all__ = ["DEFAULT_SOLVERS", "select_solvers", "solver_names"]
 
 #: Backends a harness command runs when none are named: the conic interior
 #: points, both SCS formulations, the iterative methods and the non-convex
@@ -28,6 +28,18 @@ DEFAULT_SOLVERS = [
     "pgs",
     "nscd",
 ]
+
+
+def solver_names(names: str | list[str] | tuple[str, ...] | None) -> list[str]:
+    """Backend names from a comma-separated string or a list (empty for None); an unknown
+    name raises :class:`SolverNotFound`, listing the known ones."""
+    if not names:
+        return []
+    chosen = names.split(",") if isinstance(names, str) else list(names)
+    chosen = [n.strip() for n in chosen if n.strip()]
+    for name in chosen:
+        solvers.resolve(name)
+    return chosen
 
 
 def select_solvers(names: str | list[str] | None, dim: int) -> list[str]:

@@ -1,0 +1,142 @@
+"""``cocd bench backends``: every available backend on one 2D step and one 3D step.
+
+The 2D problem is a column of discs after 30 steps of collapse, the 3D one a box
+of spheres after 20 steps of settling (both stepped with ``clarabel`` and cached
+by :func:`cocd.bench.states.record_steps`). Each backend solves it in the
+harness's child process (after a tiny problem that loads its compiled code),
+under a wall-clock limit and a memory cap, so that a
+backend that runs out of time or memory is a row saying so. ``u_error`` is
+against ``clarabel`` at tol 1e-10, relative to ``max(||u_ref||, ||U||)``. 3D
+friction is offered to the QP backends as an 8-facet pyramid (``facets=8``: an
+approximation, whose residuals show its error); first-order QP backends and
+cvxpy's are left out there.
+
+``solves`` counts the native solves made to reach ``ccp_residual <= tol`` and
+``polished`` says whether the active-set polish (:mod:`solvers.polish`) was
+accepted. Failed rows carry no residuals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+import solvers as backends
+from cocd.bench import report, solver_names, study
+from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
+from cocd.bench.states import StepSequence, record_steps
+from cocd.bench.study import option
+from cocd.builders import box_3d, column_2d
+from cocd.errors import CocdError
+
+__all__ = ["COLUMNS", "STUDY", "Settings", "one_step", "run"]
+
+COLUMNS = [
+    "problem",
+    "dim",
+    "N",
+    "Nc",
+    "solver",
+    "tol",
+    "formulation",
+    "status",
+    "iterations",
+    "setup_s",
+    "solve_s",
+    "wall_s",
+    "ccp_residual",
+    "coulomb_residual",
+    "u_error",
+    "solves",
+    "polished",
+    "note",
+]
+#: Seconds (of simulated time, dt = 1e-3 s) before the recorded step of each case.
+T_START = {2: 0.030, 3: 0.020}
+REFERENCE_TOL = 1e-10
+
+
+def one_step(dim: int, n: int, n_steps: int = 1, progress: Any = None) -> StepSequence:
+    """The 2D column (``dim`` 2) or 3D box (``dim`` 3) of ``n`` grains, stepped to
+    :data:`T_START` with ``clarabel``, and its next ``n_steps`` step problems."""
+    label, build = ("column-2d", column_2d) if dim == 2 else ("box-3d", box_3d)
+    return record_steps(
+        label, lambda: build(n), dt=1e-3, t_start=T_START[dim], n_steps=n_steps, progress=progress
+    )
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The options of ``cocd bench backends``."""
+
+    solvers: str | None = study.solvers(help="Comma-separated backends (default: every one here).")
+    n2d: int = option(8308, "Discs in the 2D column.")
+    n3d: int = option(2000, "Spheres in the 3D box.")
+    tol: float = option(1e-8, "Tolerance asked of every backend.")
+    time_limit: float = study.time_limit(300.0)
+    memory_gb: float | None = study.memory_gb()
+
+
+def run(
+    *,
+    solvers: str | list[str] | None,
+    n2d: int,
+    n3d: int,
+    tol: float,
+    time_limit: float,
+    memory_gb: float | None,
+    out: Path,
+    progress: Any = print,
+) -> pd.DataFrame:
+    """Every backend on one step of each case; writes ``backends.csv`` and ``.md``."""
+    for name, value in (("n2d", n2d), ("n3d", n3d)):
+        if int(value) != value or value < 2:
+            raise CocdError(f"{name} must be an integer >= 2, got {value!r}")
+    names = solver_names(solvers) or backends.available()  # unknown names fail here
+    memory = default_memory_gb() if memory_gb is None else memory_gb
+    rows = []
+    for dim, n in ((2, n2d), (3, n3d)):
+        seq = one_step(dim, int(n), progress=report.throttled(progress, 10.0))
+        problem = seq.problems[0]
+        ref = backends.solve(problem, "clarabel", tol=REFERENCE_TOL)
+        with Worker(memory_gb=memory, grace=60.0) as worker:
+            for name in names:
+                info = backends.get(name)
+                run_name = name
+                if info.linear_cones_only and not problem.is_qp:
+                    if info.first_order or "cvxpy" in name:
+                        continue
+                    run_name = f"{name}:facets=8"
+                worker.solve_row(warmup_problem(dim), run_name, tol)  # load compiled code
+                row = worker.solve_row(problem, run_name, tol, time_limit=time_limit, ref_u=ref.u)
+                row.update(problem=seq.label, dim=dim, N=seq.n_free, Nc=problem.nc, tol=tol)
+                progress(
+                    f"{seq.label}: {run_name}: {row['status']}, {row['wall_s']:.3g} s, "
+                    f"ccp {row['ccp_residual']:.2e} {row.get('note') or ''}"
+                )
+                rows.append({c: row.get(c) for c in COLUMNS})
+    table = pd.DataFrame(rows, columns=COLUMNS)
+    title = "Every backend on one step"
+    intro = (
+        f"tol {tol:g}, time limit {time_limit:g} s and memory cap {memory:g} GiB per backend; "
+        "`u_error` against clarabel at tol 1e-10."
+    )
+    files = report.write_table(out, "backends", table, title=title, intro=intro)
+    report.write_meta(out, "backends", title=title, files=files)
+    return table
+
+
+STUDY = study.register(
+    study.Study(
+        "backends",
+        "bench",
+        Settings,
+        run,
+        outputs=("backends",),
+        help="Every available backend on one 2D step and one 3D step, judged by the same "
+        "residuals.",
+    )
+)
