@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cocd.errors import CocdError, ProblemError, SolverError, SolverNotFound
-from solvers.base import Solution, SolverInfo, Status
+from solvers.base import Request, Solution, SolverInfo, Status
 from solvers.registry import available, get, register, registered, resolve, unavailable
 
 if TYPE_CHECKING:
@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from cocd.problem import ConicProblem
 
 __all__ = [
+    "Request",
     "Solution",
     "SolverInfo",
     "SolverNotFound",
@@ -61,17 +62,9 @@ def solve(
     problem : ConicProblem
     solver : str
         A name from :func:`available`.
-    tol : float
-        Target accuracy; each backend maps it onto its own stopping criteria
-        (see its docstring). Judge the answer with :mod:`cocd.residuals`.
-    warm_start : (nc, m) array, optional
-        Impulses to start from; ignored with a warning by backends that
-        cannot use one.
-    max_iter : int, optional
-    time_limit : float, optional
-        Seconds.
-    verbose : bool
-        Let the backend print its log.
+    tol, warm_start, max_iter, time_limit, verbose
+        The :class:`~solvers.base.Request` given to the backend (its fields say
+        what each means); a warm start may also have the shape ``(nc * m,)``.
     **options
         Passed to the backend.
 
@@ -140,17 +133,10 @@ def solve(
         return Solution.free_flight(problem, solver)
 
     fn = info.load()
+    request = Request(tol, p0, max_iter, time_limit, verbose)
     start = time.perf_counter()
     try:
-        solution = fn(
-            problem,
-            tol=float(tol),
-            warm_start=p0,
-            max_iter=max_iter,
-            time_limit=time_limit,
-            verbose=verbose,
-            **options,
-        )
+        solution = fn(problem, request, **options)
     except (CocdError, TypeError):
         raise
     except Exception as exc:

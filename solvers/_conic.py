@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from cocd.problem import ConicProblem, DualConicForm
-    from solvers.base import Solution
+    from solvers.base import Request, Solution
 
 __all__ = ["FORMS", "answer", "conic_form", "no_free_setting", "to_target"]
 
@@ -63,12 +63,11 @@ def no_free_setting(name: str, key: str, follows: str, settings: str) -> Problem
 def to_target(
     problem: ConicProblem,
     form: str,
-    tol: float,
+    request: Request,
     attempt: Callable[[float, float | None], Attempt],
     *,
     base: str,
     start: float,
-    time_limit: float | None,
     polish: bool,
     first_factor: float = FIRST_TOL_FACTOR,
     floor: float = SMALLEST_NATIVE_TOL,
@@ -77,11 +76,10 @@ def to_target(
     everything since ``start``. The solver is named ``base`` or ``base-dual``."""
     return solve_to_target(
         problem,
-        tol,
+        request,
         attempt,
         solver=base if form == "primal" else f"{base}-{form}",
         setup_time=time.perf_counter() - start,
-        time_limit=time_limit,
         polish=polish,
         first_factor=first_factor,
         floor=floor,

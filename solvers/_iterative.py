@@ -12,7 +12,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -22,14 +22,16 @@ from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
 from solvers._contact_kernels import delassus_blocks, natural_map_sq
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
 
 __all__ = [
+    "Checks",
     "Contacts",
     "Stop",
+    "answer",
     "contact_blocks",
     "gauss_seidel",
     "ignore_polish",
@@ -134,19 +136,19 @@ class Stop:
         cls,
         name: str,
         start: float,
-        limits: tuple[float, int | None, float | None],
+        request: Request,
         default_cap: int,
         check_every: Any,
-        verbose: bool,
         options: dict[str, Any],
     ) -> Stop:
-        """From ``limits = (tol, max_iter, time_limit)`` counted from ``start``; warns
-        when ``options`` ask for a polish (:func:`ignore_polish`)."""
+        """From ``request``, its time limit counted from ``start``; warns when ``options``
+        ask for a polish (:func:`ignore_polish`)."""
         ignore_polish(name, options)
-        tol, max_iter, time_limit = limits
+        max_iter, time_limit = request.max_iter, request.time_limit
         cap = default_cap if max_iter is None else int(max_iter)
         deadline = None if time_limit is None else start + float(time_limit)
-        return cls(name, tol, cap, positive_int(check_every, "check_every"), deadline, verbose)
+        check = positive_int(check_every, "check_every")
+        return cls(name, request.tol, cap, check, deadline, request.verbose)
 
 
 def gauss_seidel(
@@ -169,23 +171,21 @@ def gauss_seidel(
     """
     begin = time.perf_counter()
     dp_history: list[FloatArray] = []
-    check_sweeps: list[int] = []
-    check_ccp: list[float] = []
+    checks = Checks()
     best_p, best_r = p.copy(), math.inf
     done = 0
     status, native = Status.MAX_ITER, "max_iter"
     while True:
         v = problem.velocity(p)  # resynchronise: the sweeps update v incrementally
         r = contacts.natural_map(p, v)
-        check_sweeps.append(done)
-        check_ccp.append(r)
+        checks.add(done, r)
         bad_residual = finite_residual and not (math.isfinite(r) or contacts.rb_norm == 0.0)
         if bad_residual or not np.all(np.isfinite(v)):
             status, native = Status.ERROR, "non-finite iterate"
             break
         if r < best_r:
             best_p, best_r = p.copy(), r
-        if stop.verbose and (len(check_ccp) % _VERBOSE_EVERY == 1):
+        if stop.verbose and (len(checks.ccp) % _VERBOSE_EVERY == 1):
             last = dp_history[-1][-1] if dp_history else math.nan
             print(f"{stop.name}: sweep {done:6d}  ccp {r:9.3e}  max|dp| {last:9.3e}")
         if r <= stop.tol:
@@ -202,26 +202,55 @@ def gauss_seidel(
         n = min(stop.check_every, stop.cap - done)
         dp_history.append(sweeps(p, v, n) / contacts.impulse_scale)
         done += n
-    solve_time = time.perf_counter() - begin
+    times = (setup_time, time.perf_counter() - begin)
+    dp = np.concatenate(dp_history) if dp_history else np.zeros(0)
+    outcome = (status, native, done, best_r)
+    return answer(problem, best_p, stop, outcome, times, checks, dp, "sweeps", **extras)
+
+
+@dataclass
+class Checks:
+    """The residual checks of an iterative method: the iteration of each and its ``ccp``."""
+
+    iteration: list[int] = field(default_factory=list)
+    ccp: list[float] = field(default_factory=list)
+
+    def add(self, iteration: int, ccp: float) -> None:
+        self.iteration.append(iteration)
+        self.ccp.append(ccp)
+
+
+def answer(
+    problem: ConicProblem,
+    p: FloatArray,
+    stop: Stop,
+    outcome: tuple[Status, str, int, float],
+    times: tuple[float, float],
+    checks: Checks,
+    dp: FloatArray,
+    unit: str,
+    series: dict[str, FloatArray] | None = None,
+    **extras: Any,
+) -> Solution:
+    """The answer ``p`` of the iterative method ``stop.name``, whose last line it prints
+    when verbose.
+
+    ``outcome`` is ``(status, native status, iterations, ccp of p)`` and ``unit`` what
+    an iteration is. ``extras["history"]`` holds ``dp`` (per iteration), the other
+    ``series`` and the ``checks`` (``ccp_iteration``, ``ccp``); ``extras`` go after
+    the ``ccp`` of ``p``.
+    """
+    status, native, iterations, ccp = outcome
     if stop.verbose:
-        print(f"{stop.name}: {native} after {done} sweeps, ccp {best_r:.3e}, {solve_time:.3g} s")
+        print(f"{stop.name}: {native} after {iterations} {unit}, ccp {ccp:.3e}, {times[1]:.3g} s")
     history = {
-        "dp": np.concatenate(dp_history) if dp_history else np.zeros(0),
-        "ccp_iteration": np.asarray(check_sweeps, dtype=np.int64),
-        "ccp": np.asarray(check_ccp),
+        "dp": dp,
+        **(series or {}),
+        "ccp_iteration": np.asarray(checks.iteration, dtype=np.int64),
+        "ccp": np.asarray(checks.ccp),
     }
-    times = (setup_time, solve_time)
     return Solution.from_impulses(
-        problem,
-        best_p,
-        status,
-        done,
-        times,
-        stop.name,
-        native,
-        ccp=best_r,
-        **extras,
-        history=history,
+        problem, p, status, iterations, times, stop.name, native, ccp=ccp, **extras, history=history
     )
 
 

@@ -97,8 +97,8 @@ from solvers._apgd_kernels import (
     step_and_length,
     weighted_square,
 )
-from solvers._iterative import Stop, ratio, residual_scales, start_impulses
-from solvers.base import Solution, Status
+from solvers._iterative import Checks, Stop, answer, ratio, residual_scales, start_impulses
+from solvers.base import Request, Solution, Status
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -119,34 +119,22 @@ FloatArray = NDArray[np.float64]
 
 def apgd_solve_problem(
     problem: ConicProblem,
+    request: Request,
     *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
     check_every: int = 1,
     scaling: str = "block",
     **options: Any,
 ) -> Solution:
-    """Solve the force-based dual of ``problem`` by APGD (see the module's table).
-
-    Returns
-    -------
-    Solution
-        ``p`` the impulses ``(nc, m)``, ``u = problem.velocity(p)``,
-        ``iterations`` the accepted steps.
-    """
+    """Solve the force-based dual of ``problem`` by APGD (see the module's table)."""
     start = time.perf_counter()
-    limits = (tol, max_iter, time_limit)
-    stop = Stop.of("apgd", start, limits, DEFAULT_MAX_ITER, check_every, verbose, options)
-    cap, check_every, deadline = stop.cap, stop.check_every, stop.deadline
+    stop = Stop.of("apgd", start, request, DEFAULT_MAX_ITER, check_every, options)
+    tol, cap, check_every, deadline = stop.tol, stop.cap, stop.check_every, stop.deadline
 
     rho = problem.rho
     s = component_scaling(problem, scaling)
     scaled = _ScaledDual(problem, s)
     rb_norm, impulse_scale = residual_scales(problem)
-    x = start_impulses(problem, warm_start) / s
+    x = start_impulses(problem, request.warm_start) / s
     g_x = scaled.gradient(x)
     L = scaled.power_estimate()
     setup_time = time.perf_counter() - start
@@ -162,14 +150,12 @@ def apgd_solve_problem(
     theta = 1.0
     dp_history: list[float] = []
     l_history: list[float] = []
-    check_iter: list[int] = []
-    check_ccp: list[float] = []
+    checks = Checks()
     restarts = backtracks = 0
 
     r = ratio(math.sqrt(natural_map_sq_par(x, g_x, s, rho, mu_true)), rb_norm)
     best_x, best_r = x.copy(), r
-    check_iter.append(0)
-    check_ccp.append(r)
+    checks.add(0, r)
     status, native = Status.MAX_ITER, "max_iter"
     k = 0
     if r <= tol and ccp_residual(problem, s * x) <= tol:
@@ -201,8 +187,7 @@ def apgd_solve_problem(
             break
         if k % check_every == 0 or k == cap:
             r = ratio(math.sqrt(natural_map_sq_par(x_new, g_new, s, rho, mu_true)), rb_norm)
-            check_iter.append(k)
-            check_ccp.append(r)
+            checks.add(k, r)
             if r < best_r:
                 best_x, best_r = x_new.copy(), r
             if r <= tol:
@@ -214,7 +199,7 @@ def apgd_solve_problem(
                 # The test may have read a drifted gradient.
                 g_new[:] = scaled.gradient(x_new)
                 dg[:] = scaled.product(delta)
-        if verbose and k % _VERBOSE_EVERY == 0:
+        if stop.verbose and k % _VERBOSE_EVERY == 0:
             print(f"apgd: iteration {k:6d}  ccp {r:9.3e}  L {L:9.3e}  restarts {restarts}")
         # Momentum, restarted when the objective or the gradient-mapping test goes up.
         if df > 0.0 or g_map > 0.0:
@@ -228,32 +213,22 @@ def apgd_solve_problem(
         x, x_new = x_new, x
         g_x, g_new = g_new, g_x
         L *= L_SHRINK
-    solve_time = time.perf_counter() - solve_start
-
+    times = (setup_time, time.perf_counter() - solve_start)
     p = np.ascontiguousarray(s * best_x)
-    if verbose:
-        print(f"apgd: {native} after {k} iterations, ccp {best_r:.3e}, {solve_time:.3g} s")
-    history = {
-        "dp": np.asarray(dp_history),
-        "lipschitz": np.asarray(l_history),
-        "ccp_iteration": np.asarray(check_iter, dtype=np.int64),
-        "ccp": np.asarray(check_ccp),
-    }
-    times = (setup_time, solve_time)
-    return Solution.from_impulses(
+    return answer(
         problem,
         p,
-        status,
-        k,
+        stop,
+        (status, native, k, best_r),
         times,
-        "apgd",
-        native,
-        ccp=best_r,
+        checks,
+        np.asarray(dp_history),
+        "iterations",
+        {"lipschitz": np.asarray(l_history)},
         restarts=restarts,
         backtracks=backtracks,
         check_every=check_every,
         scaling=scaling,
-        history=history,
     )
 
 

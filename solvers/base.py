@@ -1,15 +1,17 @@
-"""What every backend returns and declares.
+"""What every backend is asked, returns and declares.
 
-A backend is a function ``solve(problem, *, tol, warm_start, max_iter,
-time_limit, verbose, **options) -> Solution`` plus a :class:`SolverInfo` that
-states its capabilities as data.
+A backend is a function ``solve(problem, request, **options) -> Solution``, with
+``request`` a :class:`Request`, plus a :class:`SolverInfo` that states its
+capabilities as data.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib
 import importlib.util
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
@@ -21,7 +23,7 @@ from numpy.typing import NDArray
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
 
-__all__ = ["Solution", "SolveFunction", "SolverInfo", "Status", "installed"]
+__all__ = ["Request", "Solution", "SolveFunction", "SolverInfo", "Status", "installed"]
 
 FloatArray = NDArray[np.float64]
 
@@ -38,6 +40,41 @@ class Status(str, Enum):
 
     def __str__(self) -> str:
         return self.value
+
+
+@dataclass(frozen=True)
+class Request:
+    """What a solve asks of any backend besides the problem and the backend's own options.
+
+    :func:`solvers.solve` builds it from its arguments (options written in the
+    solver's name included) after checking them; each backend's module has the
+    table of how these map onto its native settings.
+
+    Attributes
+    ----------
+    tol : float
+        Target accuracy, finite and ``> 0``: an answer is ``optimal`` when the
+        framework's ``ccp_residual <= tol`` (``coulomb_residual`` for a backend of
+        the non-convex law, :mod:`cocd.residuals`).
+    warm_start : (nc, m) array or None
+        Impulses to start from, one row per contact in the problem's order,
+        normal first. :func:`solvers.solve` gives one only to a backend declared
+        ``SolverInfo.warm_start`` (it warns and drops it for the others) and
+        reshapes it to ``(nc, m)``.
+    max_iter : int or None
+        Cap on the backend's iterations (what one is: its table), ``>= 1``;
+        ``None`` for the backend's default.
+    time_limit : float or None
+        Wall-clock seconds, ``> 0``; ``None`` for no limit.
+    verbose : bool
+        Let the backend print its log.
+    """
+
+    tol: float = 1e-8
+    warm_start: FloatArray | None = None
+    max_iter: int | None = None
+    time_limit: float | None = None
+    verbose: bool = False
 
 
 @dataclass
@@ -115,17 +152,7 @@ class Solution:
 
 
 class SolveFunction(Protocol):
-    def __call__(
-        self,
-        problem: ConicProblem,
-        *,
-        tol: float,
-        warm_start: FloatArray | None,
-        max_iter: int | None,
-        time_limit: float | None,
-        verbose: bool,
-        **options: Any,
-    ) -> Solution: ...
+    def __call__(self, problem: ConicProblem, request: Request, /, **options: Any) -> Solution: ...
 
 
 @dataclass(frozen=True)
@@ -191,9 +218,38 @@ class SolverInfo:
         return None
 
     def load(self) -> SolveFunction:
+        """The solve function of :attr:`entry`.
+
+        A function of the earlier keyword form, ``solve(problem, *, tol, warm_start,
+        max_iter, time_limit, verbose, **options)`` (one that takes a single
+        positional argument), is given the request's fields as keywords.
+        """
         module, _, function = self.entry.partition(":")
         solve: SolveFunction = getattr(importlib.import_module(module), function)
-        return solve
+        if _takes_request(solve):
+            return solve
+        keywords: SolveFunction = functools.partial(_by_keywords, solve)
+        return keywords
+
+
+def _takes_request(solve: Callable[..., Solution]) -> bool:
+    """Whether ``solve`` takes the request as its second positional argument."""
+    try:
+        parameters = inspect.signature(solve).parameters.values()
+    except (TypeError, ValueError):  # no signature to read: assume the current form
+        return True
+    positional = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    if any(p.kind is inspect.Parameter.VAR_POSITIONAL for p in parameters):
+        return True
+    return sum(p.kind in positional for p in parameters) >= 2
+
+
+def _by_keywords(
+    solve: Callable[..., Solution], problem: ConicProblem, request: Request, /, **options: Any
+) -> Solution:
+    """Call a solve function of the keyword form with the fields of ``request``."""
+    fields = {f.name: getattr(request, f.name) for f in dataclasses.fields(request)}
+    return solve(problem, **fields, **options)
 
 
 @functools.cache

@@ -73,7 +73,7 @@ from numpy.typing import NDArray
 from cocd.errors import ProblemError
 from solvers._bgs_kernels import bgs_sweep, greedy_colours, support_depth
 from solvers._iterative import Contacts, Stop, contact_blocks, gauss_seidel, start_impulses
-from solvers.base import Solution
+from solvers.base import Request, Solution
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -90,28 +90,16 @@ IntArray = NDArray[np.int64]
 
 def bgs_solve_problem(
     problem: ConicProblem,
+    request: Request,
     *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
     order: str = "natural",
     colour: bool = False,
     check_every: int = DEFAULT_CHECK_EVERY,
     **options: Any,
 ) -> Solution:
-    """Solve the CCP of ``problem`` by block Gauss-Seidel (see the module's table).
-
-    Returns
-    -------
-    Solution
-        ``p`` the impulses ``(nc, m)``, ``u = problem.velocity(p)``,
-        ``iterations`` the sweeps made.
-    """
+    """Solve the CCP of ``problem`` by block Gauss-Seidel (see the module's table)."""
     start = time.perf_counter()
-    limits = (tol, max_iter, time_limit)
-    stop = Stop.of("bgs", start, limits, DEFAULT_MAX_ITER, check_every, verbose, options)
+    stop = Stop.of("bgs", start, request, DEFAULT_MAX_ITER, check_every, options)
     if order not in ORDERS:
         raise ProblemError(f"bgs: order must be one of {', '.join(ORDERS)}, got {order!r}")
 
@@ -127,7 +115,7 @@ def bgs_solve_problem(
         starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     else:
         starts = np.array([0, nc], dtype=np.int64)
-    p = start_impulses(problem, warm_start)
+    p = start_impulses(problem, request.warm_start)
     setup_time = time.perf_counter() - start
 
     def sweeps(p: FloatArray, v: FloatArray, n: int) -> FloatArray:

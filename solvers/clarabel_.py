@@ -54,12 +54,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers._conic import answer, conic_form, no_free_setting, to_target
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt
 
 if TYPE_CHECKING:
-    from numpy.typing import NDArray
-
     from cocd.problem import ConicProblem, DualConicForm, PrimalConicForm
 
 __all__ = ["STATUS_MAP", "clarabel_dual_solve_problem", "clarabel_solve_problem"]
@@ -83,22 +81,14 @@ _MAPPED = {"tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio", "time_limit"
 
 
 def clarabel_solve_problem(
-    problem: ConicProblem,
-    *,
-    form: str = "primal",
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
+    problem: ConicProblem, request: Request, *, form: str = "primal", **options: Any
 ) -> Solution:
     """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with Clarabel (see the
     module's table)."""
     start = time.perf_counter()
     model = conic_form(problem, form)
     polish = bool(options.pop("polish", True))
-    settings = _settings(verbose, max_iter, options)
+    settings = _settings(request, options)
     cones = _cones(model.cones)
 
     def attempt(native_tol: float, time_left: float | None) -> Attempt:
@@ -108,23 +98,14 @@ def clarabel_solve_problem(
         status = STATUS_MAP.get(native, Status.ERROR)
         return Attempt(p, u, status, native, int(sol.iterations), _extras(sol))
 
-    return to_target(
-        problem,
-        form,
-        tol,
-        attempt,
-        base="clarabel",
-        start=start,
-        time_limit=time_limit,
-        polish=polish,
-    )
+    return to_target(problem, form, request, attempt, base="clarabel", start=start, polish=polish)
 
 
 #: The force-based dual, for direct calls (the registry passes ``form="dual"``).
 clarabel_dual_solve_problem = functools.partial(clarabel_solve_problem, form="dual")
 
 
-def _settings(verbose: bool, max_iter: int | None, options: dict[str, Any]) -> Any:
+def _settings(request: Request, options: dict[str, Any]) -> Any:
     settings = clarabel.DefaultSettings()
     for key, value in options.items():
         if key.startswith("_") or not hasattr(settings, key) or key in _MAPPED:
@@ -132,9 +113,9 @@ def _settings(verbose: bool, max_iter: int | None, options: dict[str, Any]) -> A
                 "clarabel", key, "tolerances follow tol", "see clarabel.DefaultSettings"
             )
         setattr(settings, key, value)
-    settings.verbose = verbose
-    if max_iter is not None:
-        settings.max_iter = max_iter
+    settings.verbose = request.verbose
+    if request.max_iter is not None:
+        settings.max_iter = request.max_iter
     return settings
 
 

@@ -124,7 +124,7 @@ import cvxpy.settings as cps
 import numpy as np
 
 from cocd.errors import ProblemError
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt, solve_to_target
 from solvers.registry import CVXPY_SOLVERS
 
@@ -344,21 +344,14 @@ def build_model(problem: ConicProblem) -> CvxpyModel:
 
 
 def cvxpy_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    cvxpy_solver: str = "CLARABEL",
-    **options: Any,
+    problem: ConicProblem, request: Request, *, cvxpy_solver: str = "CLARABEL", **options: Any
 ) -> Solution:
     """Solve the COCD primal of ``problem`` written in cvxpy with ``cvxpy_solver``.
 
     See the module's tables for how ``tol``, ``max_iter`` and ``time_limit`` map
     onto each solver's settings.
     """
+    tol, max_iter, verbose = request.tol, request.max_iter, request.verbose
     start = time.perf_counter()
     solver = str(cvxpy_solver).upper()
     name = f"cvxpy:{solver}"
@@ -457,11 +450,10 @@ def cvxpy_solve_problem(
 
     solution = solve_to_target(
         problem,
-        tol,
+        request,
         attempt,
         solver=name,
         setup_time=setup_time,
-        time_limit=time_limit,
         polish=polish,
         first_factor=1.0 if first_order else 1e-2,
         floor=native.floor,

@@ -58,7 +58,7 @@ import scipy.sparse as sp
 
 from cocd.errors import ProblemError
 from solvers._conic import answer, no_free_setting, to_target
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt
 
 if TYPE_CHECKING:
@@ -114,16 +114,7 @@ def epigraph_form(
     return np.asarray(c, dtype=np.float64), G, np.asarray(h, dtype=np.float64), dims
 
 
-def ecos_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
-) -> Solution:
+def ecos_solve_problem(problem: ConicProblem, request: Request, **options: Any) -> Solution:
     """Solve the COCD primal of ``problem`` with ECOS (see the module's table)."""
     start = time.perf_counter()
     form = problem.primal_conic_form()
@@ -136,9 +127,9 @@ def ecos_solve_problem(
                 "tolerances and max_iters follow tol and max_iter",
                 f"free settings: {', '.join(sorted(_FREE))}",
             )
-    settings: dict[str, Any] = {**options, "verbose": bool(verbose)}
-    if max_iter is not None:
-        settings["max_iters"] = int(max_iter)
+    settings: dict[str, Any] = {**options, "verbose": bool(request.verbose)}
+    if request.max_iter is not None:
+        settings["max_iters"] = int(request.max_iter)
     c, G, h, dims = epigraph_form(form)
     rows, n = form.A.shape
 
@@ -157,13 +148,12 @@ def ecos_solve_problem(
     return to_target(
         problem,
         "primal",
-        tol,
+        request,
         attempt,
         base="ecos",
         start=start,
-        time_limit=time_limit,
         polish=polish,
-        floor=min(SMALLEST_TOL, tol),
+        floor=min(SMALLEST_TOL, request.tol),
     )
 
 

@@ -64,7 +64,7 @@ import solvers
 from cocd.errors import ProblemError, SolverNotFound
 from cocd.problem import ConicProblem
 from cocd.residuals import coulomb_residual
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -77,18 +77,11 @@ DEFAULT_INNER_TOL = 0.1
 
 
 def fp_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    inner: str = DEFAULT_INNER,
-    **options: Any,
+    problem: ConicProblem, request: Request, *, inner: str = DEFAULT_INNER, **options: Any
 ) -> Solution:
     """Solve the non-convex Coulomb law of ``problem`` by Cadoux's fixed point on
     convex problems solved by ``inner`` (see the module's table)."""
+    tol, max_iter, time_limit = request.tol, request.max_iter, request.time_limit
     info = _inner_backend(inner)
     inner_tol = float(options.pop("inner_tol", DEFAULT_INNER_TOL))
     if not 0.0 < inner_tol <= 1.0:
@@ -105,6 +98,7 @@ def fp_solve_problem(
 
     start = time.perf_counter()
     nc, m = problem.nc, problem.contact_dim
+    warm_start = request.warm_start
     p = None if warm_start is None else np.asarray(warm_start, dtype=np.float64).reshape(nc, m)
     shift = np.zeros(nc) if p is None else _slip_shift(problem, p)
 
@@ -145,7 +139,7 @@ def fp_solve_problem(
         approximation = sol.extras.get("approximation", approximation)
         res = coulomb_residual(problem, p)
         history.append((outer, sol.status.value, sol.iterations, res))
-        if verbose:
+        if request.verbose:
             print(
                 f"fp:{inner}: outer {outer:3d}  inner {sol.status.value} "
                 f"({sol.iterations} it)  coulomb_residual {res:.3e}"

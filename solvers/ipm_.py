@@ -74,7 +74,7 @@ from solvers._ipm_kernels import (
     pair_positions,
 )
 from solvers._ipm_linsolve import LINEAR, LINSOLVES, default_linsolve
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.polish import polish_impulses
 
 if TYPE_CHECKING:
@@ -291,24 +291,16 @@ class ReducedSystem:
 
 
 # -- the solver ------------------------------------------------------------------------
-def ipm_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: Any = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
-) -> Solution:
+def ipm_solve_problem(problem: ConicProblem, request: Request, **options: Any) -> Solution:
     """Solve the COCD primal of ``problem`` (see the module's table)."""
+    tol, time_limit, verbose = request.tol, request.time_limit, request.verbose
     linsolve = str(options.get("linsolve") or default_linsolve())
     if linsolve not in LINEAR:
         raise ProblemError(f"ipm: linsolve must be one of {LINSOLVES}, got {linsolve!r}")
     threads = int(options.get("threads", 2))
     polish = bool(options.get("polish", True))
     correctors = int(options.get("correctors", DEFAULT_CORRECTORS))
-    cap = DEFAULT_MAX_ITER if max_iter is None else int(max_iter)
+    cap = DEFAULT_MAX_ITER if request.max_iter is None else int(request.max_iter)
     start = time.perf_counter()
     times = {
         "setup": 0.0,

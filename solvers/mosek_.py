@@ -71,7 +71,7 @@ import scipy.sparse as sp
 from cocd.errors import ProblemError
 from cocd.problem import PrimalConicForm
 from solvers._conic import answer, conic_form, no_free_setting, to_target
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt
 
 if TYPE_CHECKING:
@@ -190,15 +190,7 @@ def _build(
 
 
 def mosek_solve_problem(
-    problem: ConicProblem,
-    *,
-    form: str = "primal",
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
+    problem: ConicProblem, request: Request, *, form: str = "primal", **options: Any
 ) -> Solution:
     """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with Mosek (see the
     module's table)."""
@@ -214,7 +206,7 @@ def mosek_solve_problem(
             build_primal_task(task, model)
         else:
             build_dual_task(task, model)
-        _configure(task, verbose, max_iter, threads)
+        _configure(task, request, threads)
         rows, n = model.A.shape
 
         def attempt(native_tol: float, time_left: float | None) -> Attempt:
@@ -229,13 +221,12 @@ def mosek_solve_problem(
         return to_target(
             problem,
             form,
-            tol,
+            request,
             attempt,
             base="mosek",
             start=start,
-            time_limit=time_limit,
             polish=polish,
-            floor=min(SMALLEST_TOL, tol),
+            floor=min(SMALLEST_TOL, request.tol),
         )
 
 
@@ -255,14 +246,14 @@ def _threads(options: dict[str, Any]) -> int | None:
     return None if threads is None else int(threads)
 
 
-def _configure(task: Any, verbose: bool, max_iter: int | None, threads: int | None) -> None:
+def _configure(task: Any, request: Request, threads: int | None) -> None:
     import mosek
 
     task.putintparam(mosek.iparam.optimizer, mosek.optimizertype.conic)
-    if verbose:
+    if request.verbose:
         task.set_Stream(mosek.streamtype.log, sys.stdout.write)
-    if max_iter is not None:
-        task.putintparam(mosek.iparam.intpnt_max_iterations, int(max_iter))
+    if request.max_iter is not None:
+        task.putintparam(mosek.iparam.intpnt_max_iterations, int(request.max_iter))
     if threads is not None:
         task.putintparam(mosek.iparam.num_threads, threads)
 

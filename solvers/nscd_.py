@@ -72,7 +72,7 @@ from cocd.errors import ProblemError
 from cocd.residuals import coulomb_residual
 from solvers._iterative import Contacts, contact_blocks
 from solvers._nscd_kernels import LOCAL_EXACT, LOCAL_FB, nscd_sweeps
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -85,17 +85,9 @@ DEFAULT_MAX_SWEEPS = 20000
 _LOCAL = {"exact": LOCAL_EXACT, "fb": LOCAL_FB}
 
 
-def nscd_solve_problem(
-    problem: ConicProblem,
-    *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
-) -> Solution:
+def nscd_solve_problem(problem: ConicProblem, request: Request, **options: Any) -> Solution:
     """Solve the non-convex Coulomb law of ``problem`` by NSCD (see the module's table)."""
+    tol, time_limit = request.tol, request.time_limit
     relax = float(options.get("relax", 1.0))
     if not 0.0 < relax <= 2.0:
         raise ProblemError(f"nscd: relax must be in (0, 2], got {relax}")
@@ -108,16 +100,16 @@ def nscd_solve_problem(
         raise ProblemError(f"nscd: local must be one of {sorted(_LOCAL)}, got {local_name!r}")
     local = _LOCAL[local_name]
     counts = np.zeros(2, dtype=np.int64)
-    max_sweeps = DEFAULT_MAX_SWEEPS if max_iter is None else int(max_iter)
+    max_sweeps = DEFAULT_MAX_SWEEPS if request.max_iter is None else int(request.max_iter)
 
     start = time.perf_counter()
     nc, m = problem.nc, problem.contact_dim
     c = Contacts.of(problem, sort=True)
     W, Winv = contact_blocks(problem, c.indptr, c.indices, c.data, c.inv_mass)
-    if warm_start is None:
+    if request.warm_start is None:
         p = np.zeros((nc, m))
     else:
-        p = project_coulomb(np.asarray(warm_start, dtype=np.float64).reshape(nc, m), c.mu)
+        p = project_coulomb(np.asarray(request.warm_start, dtype=np.float64).reshape(nc, m), c.mu)
     p = np.ascontiguousarray(p)
     v = problem.velocity(p)
     setup_time = time.perf_counter() - start
@@ -143,7 +135,7 @@ def nscd_solve_problem(
         v = problem.velocity(p)
         res = coulomb_residual(problem, p)
         history.append((sweeps, res))
-        if verbose:
+        if request.verbose:
             print(f"nscd: sweep {sweeps:6d}  coulomb_residual {res:.3e}  dp_max {dp_max:.3e}")
         if res < best_res or not np.isfinite(best_res):
             best_res, best_p = res, p.copy()

@@ -73,7 +73,7 @@ from numpy.typing import NDArray
 
 from solvers._iterative import Contacts, Stop, gauss_seidel, relaxation, start_impulses
 from solvers._pgs_kernels import pgs_sweeps
-from solvers.base import Solution
+from solvers.base import Request, Solution
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -88,30 +88,18 @@ FloatArray = NDArray[np.float64]
 
 def pgs_solve_problem(
     problem: ConicProblem,
+    request: Request,
     *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
     omega: float = 1.0,
     check_every: int = DEFAULT_CHECK_EVERY,
     **options: Any,
 ) -> Solution:
-    """Solve the CCP of ``problem`` by projected Gauss-Seidel (see the module's table).
-
-    Returns
-    -------
-    Solution
-        ``p`` the impulses ``(nc, m)``, ``u = problem.velocity(p)``,
-        ``iterations`` the sweeps made.
-    """
+    """Solve the CCP of ``problem`` by projected Gauss-Seidel (see the module's table)."""
     start = time.perf_counter()
-    limits = (tol, max_iter, time_limit)
-    stop = Stop.of("pgs", start, limits, DEFAULT_MAX_ITER, check_every, verbose, options)
+    stop = Stop.of("pgs", start, request, DEFAULT_MAX_ITER, check_every, options)
     omega = relaxation(omega)
     c = Contacts.of(problem)
-    p = start_impulses(problem, warm_start)
+    p = start_impulses(problem, request.warm_start)
     setup_time = time.perf_counter() - start
     dp_buffer = np.empty(stop.check_every)
 

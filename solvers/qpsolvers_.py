@@ -158,7 +158,7 @@ import qpsolvers
 
 from cocd.errors import ProblemError, SolverError
 from solvers._qp_backends import BACKENDS, GENERIC, Backend
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.refine import FIRST_TOL_FACTOR, Attempt, solve_to_target
 from solvers.registry import QP_SOLVERS
 
@@ -208,17 +208,14 @@ def _check_options(qp_solver: str, backend: Backend, options: dict[str, Any]) ->
 
 def qp_solve_problem(
     problem: ConicProblem,
+    request: Request,
     *,
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
     qp_solver: str,
     facets: int | None = None,
     **options: Any,
 ) -> Solution:
     """Solve the COCD primal of ``problem`` as a QP with ``qp_solver`` (see the module)."""
+    tol, warm_start = request.tol, request.warm_start
     start = time.perf_counter()
     if qp_solver not in qpsolvers.available_solvers:
         raise SolverError(
@@ -266,13 +263,13 @@ def qp_solve_problem(
     state = {"x": x_start, "z": z_start}
 
     def attempt(native_tol: float, time_left: float | None) -> Attempt:
-        kwargs = {**backend.settings(native_tol, max_iter, time_left), **native}
+        kwargs = {**backend.settings(native_tol, request.max_iter, time_left), **native}
         if state["z"] is not None:
             kwargs["z"] = state["z"]
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             sol = qpsolvers.solve_problem(
-                qp, solver=qp_solver, initvals=state["x"], verbose=verbose, **kwargs
+                qp, solver=qp_solver, initvals=state["x"], verbose=request.verbose, **kwargs
             )
         native_status, status = backend.status(sol)
         if not sol.found and status == Status.OPTIMAL:
@@ -323,15 +320,14 @@ def qp_solve_problem(
     if form.facets is not None:
         # Another problem: solved once at tol, whose error is far below the faceting's.
         native_tol = max(tol, backend.floor or 0.0)
-        return _single(problem, attempt, native_tol, time_limit, name, setup_time, form.facets)
+        return _single(problem, attempt, native_tol, request, name, setup_time, form.facets)
     first_tol = max(tol * FIRST_TOL_FACTOR, backend.floor or 0.0)
     return solve_to_target(
         problem,
-        tol,
+        request,
         attempt,
         solver=name,
         setup_time=setup_time,
-        time_limit=time_limit,
         polish=polish,
         floor=first_tol if backend.floor is None else backend.floor,
     )
@@ -352,14 +348,14 @@ def _single(
     problem: ConicProblem,
     attempt: Callable[[float, float | None], Attempt],
     native_tol: float,
-    time_limit: float | None,
+    request: Request,
     name: str,
     setup_time: float,
     facets: int,
 ) -> Solution:
     """One native solve of the faceted problem; its status is the native one."""
     begin = time.perf_counter()
-    result = attempt(native_tol, time_limit)
+    result = attempt(native_tol, request.time_limit)
     solve_time = time.perf_counter() - begin
     u = result.u if result.u is not None else problem.velocity(result.p)
     return Solution(

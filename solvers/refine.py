@@ -20,7 +20,7 @@ import numpy as np
 
 from cocd.cones import project_coulomb
 from cocd.residuals import ccp_residual
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.polish import polish_impulses
 
 if TYPE_CHECKING:
@@ -51,17 +51,17 @@ class Attempt:
 
 def solve_to_target(
     problem: ConicProblem,
-    tol: float,
+    request: Request,
     attempt: Callable[[float, float | None], Attempt],
     *,
     solver: str,
     setup_time: float = 0.0,
-    time_limit: float | None = None,
     polish: bool = True,
     first_factor: float = FIRST_TOL_FACTOR,
     floor: float = SMALLEST_NATIVE_TOL,
 ) -> Solution:
-    """Run ``attempt(native_tol, time_left)`` until ``ccp_residual <= tol``.
+    """Run ``attempt(native_tol, time_left)`` until ``ccp_residual <= request.tol``,
+    within ``request.time_limit``.
 
     The answer returned is the best (lowest ``ccp_residual``) of the attempts
     that answered; its status is ``optimal`` when it meets the target,
@@ -71,6 +71,7 @@ def solve_to_target(
     ``extras["attempts"]`` lists ``(native_tol, native_status, iterations,
     polished, ccp_residual)`` per solve.
     """
+    tol, time_limit = request.tol, request.time_limit
     solve_time = 0.0
     polish_time = 0.0
     iterations = 0

@@ -83,7 +83,7 @@ from numpy.typing import NDArray
 
 from cocd.cones import project_coulomb
 from solvers._conic import answer, conic_form, no_free_setting, to_target
-from solvers.base import Solution, Status
+from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt
 
 if TYPE_CHECKING:
@@ -127,23 +127,16 @@ Start = tuple[FloatArray, FloatArray, FloatArray]
 
 
 def scs_solve_problem(
-    problem: ConicProblem,
-    *,
-    form: str = "primal",
-    tol: float = 1e-8,
-    warm_start: NDArray[np.float64] | None = None,
-    max_iter: int | None = None,
-    time_limit: float | None = None,
-    verbose: bool = False,
-    **options: Any,
+    problem: ConicProblem, request: Request, *, form: str = "primal", **options: Any
 ) -> Solution:
     """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with SCS (see the module's
     table)."""
     start = time.perf_counter()
     model = conic_form(problem, form)
+    warm_start = request.warm_start
     first = None if warm_start is None else _START[form](model, warm_start)
     polish = bool(options.pop("polish", True))
-    settings = _settings(verbose, max_iter, options)
+    settings = _settings(request, options)
     data, cone = _data(model)
     runner = _Runner(data, cone, settings, first)
 
@@ -159,14 +152,13 @@ def scs_solve_problem(
     return to_target(
         problem,
         form,
-        tol,
+        request,
         attempt,
         base="scs",
         start=start,
-        time_limit=time_limit,
         polish=polish,
         first_factor=FIRST_EPS_FACTOR,
-        floor=min(SMALLEST_EPS, tol),
+        floor=min(SMALLEST_EPS, request.tol),
     )
 
 
@@ -207,7 +199,7 @@ class _Runner:
         return sol
 
 
-def _settings(verbose: bool, max_iter: int | None, options: dict[str, Any]) -> dict[str, Any]:
+def _settings(request: Request, options: dict[str, Any]) -> dict[str, Any]:
     for key in options:
         if key not in _FREE:
             raise no_free_setting(
@@ -217,7 +209,8 @@ def _settings(verbose: bool, max_iter: int | None, options: dict[str, Any]) -> d
                 f"free settings: {', '.join(sorted(_FREE))}",
             )
     settings = dict(options)
-    settings["verbose"] = bool(verbose)
+    settings["verbose"] = bool(request.verbose)
+    max_iter = request.max_iter
     settings["max_iters"] = DEFAULT_MAX_ITERS if max_iter is None else int(max_iter)
     return settings
 

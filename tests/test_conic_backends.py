@@ -31,6 +31,7 @@ import solvers
 from cocd import Scene, SolverNotFound, Stepper, Wall
 from cocd.residuals import ccp_residual
 from cocd.stepper import match_impulses
+from solvers import Request
 
 REFERENCE_TOL = 1e-10
 
@@ -258,25 +259,9 @@ def test_mosek_backends_build_and_configure_up_to_the_licence_check(problems, di
     problem, _ = problems[dim]
     for solve in (mosek_solve_problem, mosek_dual_solve_problem):
         with pytest.raises(mosek.Error, match=r"[Ll]icen"):
-            solve(
-                problem,
-                tol=1e-8,
-                warm_start=None,
-                max_iter=50,
-                time_limit=10.0,
-                verbose=False,
-                num_threads=1,
-            )
+            solve(problem, Request(tol=1e-8, max_iter=50, time_limit=10.0), num_threads=1)
         with pytest.raises(cocd.ProblemError, match="'bogus'"):
-            solve(
-                problem,
-                tol=1e-8,
-                warm_start=None,
-                max_iter=None,
-                time_limit=None,
-                verbose=False,
-                bogus=1,
-            )
+            solve(problem, Request(tol=1e-8), bogus=1)
 
 
 @pytest.mark.skipif(not _mosek_usable(), reason="Mosek needs a licence")

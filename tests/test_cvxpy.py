@@ -27,7 +27,7 @@ import pytest
 import solvers
 from cocd import ProblemError, Scene, Stepper, Wall, box_3d, column_2d, stack
 from cocd.residuals import ccp_residual
-from solvers import Status
+from solvers import Request, Status
 from solvers.cvxpy_ import build_model, cvxpy_solve_problem
 
 TOL = 1e-8
@@ -166,13 +166,7 @@ def test_qp_only_solvers_take_2d_and_refuse_3d_friction(backend, problems, refer
     # Called directly (solvers.solve refuses earlier), the backend refuses too.
     with pytest.raises(ProblemError, match="linear cones only"):
         cvxpy_solve_problem(
-            problems("stack-3d"),
-            tol=TOL,
-            warm_start=None,
-            max_iter=None,
-            time_limit=None,
-            verbose=False,
-            cvxpy_solver=backend.split(":")[1],
+            problems("stack-3d"), Request(tol=TOL), cvxpy_solver=backend.split(":")[1]
         )
 
 

@@ -43,8 +43,9 @@ def test_licence_probe_reason(clean_registry):
     assert solvers.unavailable()["licensed"] == "no licence"
 
 
-def _copy_solver(problem, *, tol, warm_start, max_iter, time_limit, verbose, **options):
+def _copy_solver(problem, request, **options):
     """A test backend: answers with the warm start it was given (or zero)."""
+    warm_start = request.warm_start
     p = np.zeros((problem.nc, problem.contact_dim)) if warm_start is None else warm_start
     return Solution(
         u=problem.velocity(p),
@@ -102,6 +103,19 @@ def test_declared_options_are_checked_for_every_backend(clean_registry):
             solvers.solve(problem, name, rho=1.0)
 
 
+def _keyword_solver(problem, *, tol, warm_start, max_iter, time_limit, verbose, **options):
+    """A test backend of the earlier keyword form: says what it was given."""
+    p = np.zeros((problem.nc, problem.contact_dim))
+    given = (tol, warm_start, max_iter, time_limit, verbose, options)
+    return Solution(problem.velocity(p), p, Status.MAX_ITER, 0, 0.0, 0.0, "kw", {"given": given})
+
+
+def test_a_backend_of_the_keyword_form_gets_the_request_as_keywords(clean_registry):
+    solvers.register(SolverInfo(name="kw", entry=f"{__name__}:_keyword_solver", accepts=("a",)))
+    sol = solvers.solve(_stack_problem(), "kw", 1e-6, None, 7, 2.0, True, a=1)
+    assert sol.extras["given"] == (1e-6, None, 7, 2.0, True, {"a": 1})
+
+
 def _stack_problem():
     from cocd import assemble, detect_contacts
 
@@ -149,7 +163,7 @@ def test_broken_plugin_warns_instead_of_breaking(monkeypatch):
     assert "clarabel" in names
 
 
-def _crashing_solver(problem, **kwargs):
+def _crashing_solver(problem, request, **options):
     raise ZeroDivisionError("boom")
 
 
