@@ -4,7 +4,7 @@ Each takes the form it solves as ``form``: ``"primal"`` (the velocity-based
 primal, :meth:`cocd.problem.ConicProblem.primal_conic_form`) or ``"dual"``
 (the force-based dual, :meth:`cocd.problem.ConicProblem.dual_conic_form`);
 the registry's ``<name>-dual`` entries pass ``form="dual"``. Here: the form
-itself, how impulses and velocities are read from a native answer, the
+itself and the start of a solve, how impulses and velocities are read from a native answer, the
 refusal of a native setting, and the run to the framework's target.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from cocd.errors import ProblemError
 from cocd.problem import PrimalConicForm
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from cocd.problem import ConicProblem, DualConicForm
     from solvers.base import Request, Solution
 
-__all__ = ["FORMS", "answer", "conic_form", "no_free_setting", "to_target"]
+__all__ = ["FORMS", "answer", "conic_form", "no_free_setting", "prepare", "to_target"]
 
 FORMS = ("primal", "dual")
 
@@ -37,6 +37,16 @@ def conic_form(problem: ConicProblem, form: str) -> PrimalConicForm | DualConicF
     if form == "dual":
         return problem.dual_conic_form()
     raise ProblemError(f"form must be one of {', '.join(FORMS)}, got {form!r}")
+
+
+def prepare(
+    problem: ConicProblem, form: str, options: dict[str, Any]
+) -> tuple[float, PrimalConicForm | DualConicForm, bool]:
+    """The start of a conic backend's solve: its start time (``time.perf_counter()``),
+    the ``form`` of ``problem`` and whether to polish (the option ``polish``, default
+    True, taken out of ``options``)."""
+    start = time.perf_counter()
+    return start, conic_form(problem, form), bool(options.pop("polish", True))
 
 
 def answer(

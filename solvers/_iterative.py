@@ -16,13 +16,12 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
 from solvers._contact_kernels import delassus_blocks, natural_map_sq
-from solvers.base import Request, Solution, Status
+from solvers.base import FloatArray, IntArray, Request, Solution, Status
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -43,8 +42,6 @@ __all__ = [
     "start_impulses",
 ]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 _VERBOSE_EVERY = 20
 
 

@@ -84,7 +84,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
@@ -98,7 +97,7 @@ from solvers._apgd_kernels import (
     weighted_square,
 )
 from solvers._iterative import Checks, Stop, answer, ratio, residual_scales, start_impulses
-from solvers.base import Request, Solution, Status
+from solvers.base import FloatArray, Request, Solution, Status
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -113,8 +112,6 @@ L_SHRINK = 0.9
 POWER_ITERATIONS = 10
 RESYNC_EVERY = 100
 _VERBOSE_EVERY = 100
-
-FloatArray = NDArray[np.float64]
 
 
 def apgd_solve_problem(

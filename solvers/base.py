@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 __all__ = ["Request", "Solution", "SolveFunction", "SolverInfo", "Status", "installed"]
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 
 class Status(str, Enum):

@@ -68,12 +68,11 @@ import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from cocd.errors import ProblemError
 from solvers._bgs_kernels import bgs_sweep, greedy_colours, support_depth
 from solvers._iterative import Contacts, Stop, contact_blocks, gauss_seidel, start_impulses
-from solvers.base import Request, Solution
+from solvers.base import FloatArray, IntArray, Request, Solution
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -83,9 +82,6 @@ __all__ = ["DEFAULT_CHECK_EVERY", "DEFAULT_MAX_ITER", "ORDERS", "bgs_solve_probl
 DEFAULT_MAX_ITER = 10_000
 DEFAULT_CHECK_EVERY = 5
 ORDERS = ("natural", "top-down", "bottom-up")
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 def bgs_solve_problem(

@@ -45,7 +45,6 @@ Polishing fixes the active set such contacts belong to.
 from __future__ import annotations
 
 import functools
-import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -53,7 +52,7 @@ import clarabel
 import numpy as np
 import scipy.sparse as sp
 
-from solvers._conic import answer, conic_form, no_free_setting, to_target
+from solvers._conic import answer, no_free_setting, prepare, to_target
 from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt
 
@@ -83,11 +82,8 @@ _MAPPED = {"tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio", "time_limit"
 def clarabel_solve_problem(
     problem: ConicProblem, request: Request, *, form: str = "primal", **options: Any
 ) -> Solution:
-    """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with Clarabel (see the
-    module's table)."""
-    start = time.perf_counter()
-    model = conic_form(problem, form)
-    polish = bool(options.pop("polish", True))
+    """Solve ``form`` of ``problem`` with Clarabel (see the module's table)."""
+    start, model, polish = prepare(problem, form, options)
     settings = _settings(request, options)
     cones = _cones(model.cones)
 

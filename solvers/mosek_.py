@@ -61,7 +61,6 @@ from __future__ import annotations
 
 import functools
 import sys
-import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -70,7 +69,7 @@ import scipy.sparse as sp
 
 from cocd.errors import ProblemError
 from cocd.problem import PrimalConicForm
-from solvers._conic import answer, conic_form, no_free_setting, to_target
+from solvers._conic import answer, no_free_setting, prepare, to_target
 from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt
 
@@ -192,13 +191,10 @@ def _build(
 def mosek_solve_problem(
     problem: ConicProblem, request: Request, *, form: str = "primal", **options: Any
 ) -> Solution:
-    """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with Mosek (see the
-    module's table)."""
+    """Solve ``form`` of ``problem`` with Mosek (see the module's table)."""
     import mosek
 
-    start = time.perf_counter()
-    model = conic_form(problem, form)
-    polish = bool(options.pop("polish", True))
+    start, model, polish = prepare(problem, form, options)
     threads = _threads(options)
     primal = isinstance(model, PrimalConicForm)
     with mosek.Task() as task:

@@ -69,11 +69,10 @@ import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from solvers._iterative import Contacts, Stop, gauss_seidel, relaxation, start_impulses
 from solvers._pgs_kernels import pgs_sweeps
-from solvers.base import Request, Solution
+from solvers.base import FloatArray, Request, Solution
 
 if TYPE_CHECKING:
     from cocd.problem import ConicProblem
@@ -82,8 +81,6 @@ __all__ = ["DEFAULT_CHECK_EVERY", "DEFAULT_MAX_ITER", "pgs_solve_problem"]
 
 DEFAULT_MAX_ITER = 10_000
 DEFAULT_CHECK_EVERY = 5
-
-FloatArray = NDArray[np.float64]
 
 
 def pgs_solve_problem(

@@ -71,7 +71,6 @@ whenever the active set read is right.
 from __future__ import annotations
 
 import functools
-import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -82,8 +81,8 @@ import scs
 from numpy.typing import NDArray
 
 from cocd.cones import project_coulomb
-from solvers._conic import answer, conic_form, no_free_setting, to_target
-from solvers.base import Request, Solution, Status
+from solvers._conic import answer, no_free_setting, prepare, to_target
+from solvers.base import FloatArray, Request, Solution, Status
 from solvers.refine import Attempt
 
 if TYPE_CHECKING:
@@ -122,20 +121,16 @@ _FREE = {
     "linear_solver",
 }
 
-FloatArray = NDArray[np.float64]
 Start = tuple[FloatArray, FloatArray, FloatArray]
 
 
 def scs_solve_problem(
     problem: ConicProblem, request: Request, *, form: str = "primal", **options: Any
 ) -> Solution:
-    """Solve ``form`` (``"primal"`` or ``"dual"``) of ``problem`` with SCS (see the module's
-    table)."""
-    start = time.perf_counter()
-    model = conic_form(problem, form)
+    """Solve ``form`` of ``problem`` with SCS (see the module's table)."""
+    start, model, polish = prepare(problem, form, options)
     warm_start = request.warm_start
     first = None if warm_start is None else _START[form](model, warm_start)
-    polish = bool(options.pop("polish", True))
     settings = _settings(request, options)
     data, cone = _data(model)
     runner = _Runner(data, cone, settings, first)
