@@ -47,37 +47,39 @@ def _mosek_licence() -> str | None:
     return None
 
 
-#: qpsolvers backend name -> (Python module it needs, first order, takes a starting point).
-#: First-order QP methods (ADMM, splitting) have a limited attainable accuracy; the
-#: starting point is the one qpsolvers passes on (:mod:`solvers.qpsolvers_`).
-QP_SOLVERS: dict[str, tuple[str, bool, bool]] = {
-    "clarabel": ("clarabel", False, False),
-    "cvxopt": ("cvxopt", False, True),
-    "daqp": ("daqp", False, True),
-    "ecos": ("ecos", False, False),
-    "gurobi": ("gurobipy", False, False),
-    "highs": ("highspy", False, False),
-    "mosek": ("mosek", False, False),
-    "osqp": ("osqp", True, True),
-    "piqp": ("piqp", False, False),
-    "proxqp": ("proxsuite", False, True),
-    "qpalm": ("qpalm", True, True),
-    "quadprog": ("quadprog", False, False),
-    "scs": ("scs", True, True),
+#: Solver package (qpsolvers' name; cvxpy's is its upper case) -> (Python module it
+#: needs, first order). First-order methods (ADMM, splitting) have a limited attainable
+#: accuracy.
+PACKAGES: dict[str, tuple[str, bool]] = {
+    "clarabel": ("clarabel", False),
+    "cvxopt": ("cvxopt", False),
+    "daqp": ("daqp", False),
+    "ecos": ("ecos", False),
+    "gurobi": ("gurobipy", False),
+    "highs": ("highspy", False),
+    "mosek": ("mosek", False),
+    "osqp": ("osqp", True),
+    "piqp": ("piqp", False),
+    "proxqp": ("proxsuite", False),
+    "qpalm": ("qpalm", True),
+    "quadprog": ("quadprog", False),
+    "scs": ("scs", True),
 }
+#: The qpsolvers backends that take a starting point (the one qpsolvers passes on,
+#: :mod:`solvers.qpsolvers_`).
+_QP_STARTS = {"cvxopt", "daqp", "osqp", "proxqp", "qpalm", "scs"}
+#: The packages cvxpy drives here, in order, and those of them given second-order cones.
+_CVXPY = ("clarabel", "ecos", "scs", "mosek", "cvxopt", "osqp", "piqp", "proxqp", "daqp", "highs")
+_CVXPY_SOC = {"clarabel", "ecos", "scs", "mosek", "cvxopt"}
 
+#: qpsolvers backend name -> (Python module it needs, first order, takes a starting point).
+QP_SOLVERS: dict[str, tuple[str, bool, bool]] = {
+    name: (module, first_order, name in _QP_STARTS)
+    for name, (module, first_order) in PACKAGES.items()
+}
 #: cvxpy solver name -> (Python module, takes second-order cones, first order).
 CVXPY_SOLVERS: dict[str, tuple[str, bool, bool]] = {
-    "CLARABEL": ("clarabel", True, False),
-    "ECOS": ("ecos", True, False),
-    "SCS": ("scs", True, True),
-    "MOSEK": ("mosek", True, False),
-    "CVXOPT": ("cvxopt", True, False),
-    "OSQP": ("osqp", False, True),
-    "PIQP": ("piqp", False, False),
-    "PROXQP": ("proxsuite", False, False),
-    "DAQP": ("daqp", False, False),
-    "HIGHS": ("highspy", False, False),
+    name.upper(): (PACKAGES[name][0], name in _CVXPY_SOC, PACKAGES[name][1]) for name in _CVXPY
 }
 
 #: What cocd's iterative methods share: numba kernels, a warm start, first order.
