@@ -170,10 +170,24 @@ class _Native:
     max_iter: str | None
     time_limit: str | None
     floor: float
-    #: Settings a user may not pass (cocd sets them).
-    mapped: frozenset[str]
     #: Fixed settings (overridable by the user).
     defaults: tuple[tuple[str, Any], ...] = ()
+    #: Settings a user may not pass besides the tolerances (another name for them).
+    aliases: frozenset[str] = frozenset()
+
+    @property
+    def mapped(self) -> frozenset[str]:
+        """Settings a user may not pass (cocd sets them): the tolerances' names (inside
+        MOSEK's ``mosek_params``) and the aliases."""
+        names: set[str] = set()
+        for key, value in self.tolerances(1.0).items():
+            names |= set(value) if isinstance(value, dict) else {key}
+        return frozenset(names) | self.aliases
+
+
+def _equal(*names: str) -> Callable[[float], dict[str, Any]]:
+    """Native tolerances that are all the native tol."""
+    return lambda e: dict.fromkeys(names, e)
 
 
 def _osqp_polish_key() -> str:
@@ -184,93 +198,41 @@ def _osqp_polish_key() -> str:
 
 def _native(solver: str) -> _Native:
     if solver == "CLARABEL":
+        tolerances = _equal("tol_gap_abs", "tol_gap_rel", "tol_feas")
         return _Native(
-            lambda e: {
-                "tol_gap_abs": e,
-                "tol_gap_rel": e,
-                "tol_feas": e,
-                "tol_ktratio": min(1e-6, e),
-            },
+            lambda e: {**tolerances(e), "tol_ktratio": min(1e-6, e)},
             "max_iter",
             "time_limit",
             1e-12,
-            frozenset({"tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio"}),
         )
     if solver in ("ECOS", "CVXOPT"):
-        return _Native(
-            lambda e: {"abstol": e, "reltol": e, "feastol": e},
-            "max_iters",
-            None,
-            1e-10,
-            frozenset({"abstol", "reltol", "feastol"}),
-        )
+        return _Native(_equal("abstol", "reltol", "feastol"), "max_iters", None, 1e-10)
     if solver == "SCS":
-        return _Native(
-            lambda e: {"eps_abs": e, "eps_rel": e},
-            "max_iters",
-            "time_limit_secs",
-            1e-12,
-            frozenset({"eps_abs", "eps_rel", "eps"}),
-        )
+        eps = _equal("eps_abs", "eps_rel")
+        return _Native(eps, "max_iters", "time_limit_secs", 1e-12, aliases=frozenset({"eps"}))
     if solver == "OSQP":
-        return _Native(
-            lambda e: {"eps_abs": e, "eps_rel": e},
-            "max_iter",
-            "time_limit",
-            1e-10,
-            frozenset({"eps_abs", "eps_rel"}),
-            ((_osqp_polish_key(), True),),
-        )
+        eps = _equal("eps_abs", "eps_rel")
+        return _Native(eps, "max_iter", "time_limit", 1e-10, ((_osqp_polish_key(), True),))
     if solver == "PIQP":
-        return _Native(
-            lambda e: {
-                "eps_abs": e,
-                "eps_rel": e,
-                "eps_duality_gap_abs": e,
-                "eps_duality_gap_rel": e,
-            },
-            "max_iter",
-            None,
-            1e-13,
-            frozenset({"eps_abs", "eps_rel", "eps_duality_gap_abs", "eps_duality_gap_rel"}),
-        )
+        gaps = _equal("eps_abs", "eps_rel", "eps_duality_gap_abs", "eps_duality_gap_rel")
+        return _Native(gaps, "max_iter", None, 1e-13)
     if solver == "PROXQP":
-        return _Native(
-            lambda e: {"eps_abs": e, "eps_rel": 0.0},
-            "max_iter",
-            None,
-            1e-13,
-            frozenset({"eps_abs", "eps_rel"}),
-        )
+        return _Native(lambda e: {"eps_abs": e, "eps_rel": 0.0}, "max_iter", None, 1e-13)
     if solver == "DAQP":
-        return _Native(
-            lambda e: {"primal_tol": e, "dual_tol": e},
-            "iter_limit",
-            None,
-            1e-13,
-            frozenset({"primal_tol", "dual_tol"}),
-            # P = diag(M / ms) is positive definite: no proximal term, and no
-            # Cholesky test of the dense P by cvxpy (0.26 s at ndof = 180 here).
-            (("eps_prox", 0.0),),
-        )
+        # P = diag(M / ms) is positive definite: no proximal term, and no
+        # Cholesky test of the dense P by cvxpy (0.26 s at ndof = 180 here).
+        daqp = _equal("primal_tol", "dual_tol")
+        return _Native(daqp, "iter_limit", None, 1e-13, (("eps_prox", 0.0),))
     if solver == "HIGHS":
-        return _Native(
-            lambda e: {
-                "primal_feasibility_tolerance": max(e, 1e-10),
-                "dual_feasibility_tolerance": max(e, 1e-10),
-            },
-            "qp_iteration_limit",
-            "time_limit",
-            1e-10,
-            frozenset({"primal_feasibility_tolerance", "dual_feasibility_tolerance"}),
-        )
+        highs = _equal("primal_feasibility_tolerance", "dual_feasibility_tolerance")
+        return _Native(lambda e: highs(max(e, 1e-10)), "qp_iteration_limit", "time_limit", 1e-10)
     if solver == "MOSEK":
         return _Native(
             lambda e: {"mosek_params": dict.fromkeys(_MOSEK_TOLERANCES, e)},
             "MSK_IPAR_INTPNT_MAX_ITERATIONS",
             "MSK_DPAR_OPTIMIZER_MAX_TIME",
             1e-14,
-            frozenset({"eps", *_MOSEK_TOLERANCES}),
+            aliases=frozenset({"eps"}),
         )
     raise ProblemError(
         f"cvxpy solver {solver!r} has no cocd mapping; known: {', '.join(CVXPY_SOLVERS)}"
