@@ -16,6 +16,7 @@ problems (its faceted approximation is tested in test_qp.py).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -83,26 +84,17 @@ PROBLEM_NAMES = [
 
 @pytest.fixture(scope="module")
 def problems():
-    cache: dict[str, object] = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = _build(name)
-        return cache[name]
-
-    return get
+    return functools.cache(_build)
 
 
 @pytest.fixture(scope="module")
 def references(problems):
-    cache: dict[str, object] = {}
+    return clarabel_references(problems)
 
-    def get(name):
-        if name not in cache:
-            cache[name] = solvers.solve(problems(name), "clarabel", tol=1e-10)
-        return cache[name]
 
-    return get
+def clarabel_references(problems):
+    """``clarabel``'s answer at tol 1e-10 to ``problems(name)``, solved once per name."""
+    return functools.cache(lambda name: solvers.solve(problems(name), "clarabel", tol=1e-10))
 
 
 ALL_BACKENDS = sorted(solvers.registered())
@@ -122,17 +114,9 @@ def _cases(problem_names):
     ]
 
 
-#: Failures of a native solver, stated rather than hidden (seen with HiGHS 1.15; an
-#: answer a later version gives is checked like any other).
-KNOWN_FAILURES = {
-    (backend, case): "HiGHS's QP solver reports 'Non-convex' on this diagonal Hessian"
-    for backend in ("qp:highs", "cvxpy:HIGHS")
-    for case in ("packing-2d", "slip-offset-2d")
-}
-
-
-@pytest.mark.parametrize(("backend", "problem_name"), _cases(PROBLEM_NAMES))
-def test_backend_agrees_with_clarabel(backend, problem_name, problems, references):
+def _case(backend, problem_name, problems):
+    """The backend's capabilities and the problem, after a skip (with the reason) where
+    ``backend`` cannot run here or cannot take the problem."""
     reason = solvers.unavailable().get(backend)
     if reason is not None:
         pytest.skip(f"{backend} unavailable: {reason}")
@@ -144,6 +128,21 @@ def test_backend_agrees_with_clarabel(backend, problem_name, problems, reference
         pytest.skip(f"{backend} takes linear cones only (faceted cones: test_qp.py)")
     if problem.dim not in info.dims:
         pytest.skip(f"{backend} does not handle {problem.dim}D")
+    return info, problem
+
+
+#: Failures of a native solver, stated rather than hidden (seen with HiGHS 1.15; an
+#: answer a later version gives is checked like any other).
+KNOWN_FAILURES = {
+    (backend, case): "HiGHS's QP solver reports 'Non-convex' on this diagonal Hessian"
+    for backend in ("qp:highs", "cvxpy:HIGHS")
+    for case in ("packing-2d", "slip-offset-2d")
+}
+
+
+@pytest.mark.parametrize(("backend", "problem_name"), _cases(PROBLEM_NAMES))
+def test_backend_agrees_with_clarabel(backend, problem_name, problems, references):
+    info, problem = _case(backend, problem_name, problems)
     ref = references(problem_name)
     tol = FIRST_ORDER_TOL if info.first_order else EXACT_TOL
     sol = solvers.solve(problem, backend, tol=tol, time_limit=60.0)
@@ -155,7 +154,7 @@ def test_backend_agrees_with_clarabel(backend, problem_name, problems, reference
 
     assert sol.p.shape == (problem.nc, problem.contact_dim)
     assert sol.u.shape == (problem.ndof,)
-    err = _velocity_error(problem, sol.u, ref.u)
+    err = velocity_error(problem, sol.u, ref.u)
     if info.first_order:
         assert sol.found, f"{backend}: {sol.status} {sol.extras.get('native_status')}"
         assert err <= FIRST_ORDER_U, f"{backend}: velocity error {err:.2e}"
@@ -177,15 +176,7 @@ def test_native_impulses_without_polish(backend, problem_name, problems, referen
     wrong dual-to-impulse mapping: so the polish is off here, on problems whose
     impulses are unique.
     """
-    reason = solvers.unavailable().get(backend)
-    if reason is not None:
-        pytest.skip(f"{backend} unavailable: {reason}")
-    info = solvers.get(backend)
-    if not info.convex:
-        pytest.skip(f"{backend} solves the non-convex Coulomb law")
-    problem = problems(problem_name)
-    if info.linear_cones_only and not problem.is_qp:
-        pytest.skip(f"{backend} takes linear cones only")
+    info, problem = _case(backend, problem_name, problems)
     ref = references(problem_name)
     tol = FIRST_ORDER_TOL if info.first_order else EXACT_TOL
     sol = solvers.solve(problem, backend, tol=tol, polish=False)
@@ -208,7 +199,7 @@ def test_primal_and_dual_formulations_agree(primal, dual, problem_name, problems
     problem = problems(problem_name)
     a = solvers.solve(problem, primal, tol=1e-10)
     b = solvers.solve(problem, dual, tol=1e-10)
-    assert _velocity_error(problem, b.u, a.u) <= 1e-6
+    assert velocity_error(problem, b.u, a.u) <= 1e-6
     # Duality: the primal's multipliers are the dual's impulses. Where the impulses
     # are unique (no redundant contacts) they agree; elsewhere they give the same
     # velocity, checked above, and the same optimal dual objective.
@@ -219,7 +210,7 @@ def test_primal_and_dual_formulations_agree(primal, dual, problem_name, problems
     assert abs(fa - fb) <= 1e-7 * scale * np.linalg.norm(problem.b)
 
 
-def _velocity_error(problem, u, u_ref):
+def velocity_error(problem, u, u_ref):
     """``||u - u_ref||`` relative to the step's velocity scale ``max(||u_ref||, ||U||)``
     (a resting packing has ``u_ref = 0``)."""
     scale = max(np.linalg.norm(u_ref), np.linalg.norm(problem.U))

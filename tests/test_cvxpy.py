@@ -18,11 +18,13 @@ with a margin: u to 1e-6 (SCS 1e-5), unique p to 1e-5.
 
 from __future__ import annotations
 
+import functools
 import time
 
 import cvxpy as cp
 import numpy as np
 import pytest
+from test_conformance import clarabel_references, velocity_error
 
 import solvers
 from cocd import ProblemError, Scene, Stepper, Wall, box_3d, column_2d, stack
@@ -79,30 +81,12 @@ UNIQUE_P = {"wall-3d", "stack-3d", "slide-2d", "frictionless-3d"}
 
 @pytest.fixture(scope="module")
 def problems():
-    cache: dict[str, object] = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = BUILDERS[name]()
-        return cache[name]
-
-    return get
+    return functools.cache(lambda name: BUILDERS[name]())
 
 
 @pytest.fixture(scope="module")
 def references(problems):
-    cache: dict[str, object] = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = solvers.solve(problems(name), "clarabel", tol=1e-10)
-        return cache[name]
-
-    return get
-
-
-def _u_error(problem, u, u_ref):
-    return np.linalg.norm(u - u_ref) / max(np.linalg.norm(u_ref), np.linalg.norm(problem.U))
+    return clarabel_references(problems)
 
 
 def _p_error(p, p_ref):
@@ -116,7 +100,7 @@ def test_interior_point_solvers_give_clarabels_answer(backend, name, problems, r
     sol = solvers.solve(problem, backend, tol=TOL)
     assert sol.status == Status.OPTIMAL
     assert ccp_residual(problem, sol.p) <= TOL
-    assert _u_error(problem, sol.u, ref.u) <= U_REL
+    assert velocity_error(problem, sol.u, ref.u) <= U_REL
     if name in UNIQUE_P:
         assert _p_error(sol.p, ref.p) <= P_REL
     assert sol.iterations > 0
@@ -151,7 +135,7 @@ def test_scs_through_cvxpy_reaches_the_target(name, problems, references):
     sol = solvers.solve(problem, "cvxpy:SCS", tol=1e-6)
     assert sol.status == Status.OPTIMAL
     assert ccp_residual(problem, sol.p) <= 1e-6
-    assert _u_error(problem, sol.u, ref.u) <= 1e-5
+    assert velocity_error(problem, sol.u, ref.u) <= 1e-5
 
 
 @pytest.mark.parametrize("backend", ["cvxpy:OSQP", "cvxpy:PIQP"])
@@ -159,7 +143,7 @@ def test_qp_only_solvers_take_2d_and_refuse_3d_friction(backend, problems, refer
     problem, ref = problems("column-2d"), references("column-2d")
     sol = solvers.solve(problem, backend, tol=TOL)
     assert sol.status == Status.OPTIMAL
-    assert _u_error(problem, sol.u, ref.u) <= U_REL
+    assert velocity_error(problem, sol.u, ref.u) <= U_REL
     assert ccp_residual(problem, sol.p) <= TOL
     slide = problems("slide-2d")
     assert _p_error(solvers.solve(slide, backend, tol=TOL).p, references("slide-2d").p) <= P_REL

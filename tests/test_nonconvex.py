@@ -23,8 +23,11 @@ normal impulse per step obeys ``q_k (1 + mu c) = g dt + mu c q_{k-1}`` (``q = p_
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
+from test_conformance import velocity_error
 
 import solvers
 from cocd import (
@@ -90,18 +93,7 @@ def _build(name: str):
 
 @pytest.fixture(scope="module")
 def problems():
-    cache: dict[str, object] = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = _build(name)
-        return cache[name]
-
-    return get
-
-
-def _velocity_error(problem, u, ref):
-    return float(np.linalg.norm(u - ref) / max(np.linalg.norm(ref), np.linalg.norm(problem.U)))
+    return functools.cache(_build)
 
 
 # -- the local solver ----------------------------------------------------------
@@ -182,7 +174,7 @@ def test_nscd_local_strategies_agree(problem_name, problems):
     assert fb.extras["local"] == "fb" and exact.extras["local"] == "exact"
     assert fb.extras["local_newton"] > fb.extras["local_fallbacks"]
     if problem_name in UNIQUE:
-        assert _velocity_error(problem, fb.u, exact.u) <= SAME_U
+        assert velocity_error(problem, fb.u, exact.u) <= SAME_U
 
 
 def test_local_3d_sliding_every_angle_finder_agrees():
@@ -226,7 +218,7 @@ def test_nonconvex_backends_agree(problem_name, problems):
     nscd = answers["nscd"]
     if problem_name in UNIQUE:
         for name in NONCONVEX[1:]:
-            assert _velocity_error(problem, answers[name].u, nscd.u) <= SAME_U, name
+            assert velocity_error(problem, answers[name].u, nscd.u) <= SAME_U, name
     if problem_name.startswith(("slide", "column", "heap")):
         # The cases exercise the sliding branch, where the two laws differ...
         assert nscd.extras["branches"]["slide"] >= 1
@@ -282,7 +274,7 @@ def test_resting_stack_nscd(dim):
     problem = assemble(scene, detect_contacts(scene), DT)
     nscd = solvers.solve(problem, "nscd", tol=1e-10)
     cocd = solvers.solve(problem, "clarabel", tol=1e-10)
-    assert _velocity_error(problem, nscd.u, cocd.u) <= SAME_U
+    assert velocity_error(problem, nscd.u, cocd.u) <= SAME_U
     np.testing.assert_allclose(nscd.p[:, 0], cocd.p[:, 0], rtol=1e-6, atol=1e-9 * m * G * DT)
 
 
