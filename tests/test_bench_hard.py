@@ -38,13 +38,12 @@ STATED = [
 def result(tmp_path_factory):
     out = tmp_path_factory.mktemp("hard")
     lines: list[str] = []
-    table = hard.run(
+    table = hard.STUDY(
         solvers="clarabel,pgs",
         cases=CASES,
         steps=2,
         tol=TOL,
         time_limit=30.0,
-        memory_gb=None,
         out=out,
         progress=lines.append,
     )
@@ -123,19 +122,18 @@ def test_bad_arguments(tmp_path, kwargs, match):
     )
     args.update(kwargs)
     with pytest.raises(CocdError, match=match):
-        hard.run(**args)
+        hard.STUDY(**args)
     assert not (tmp_path / "hard.csv").exists()
 
 
 def test_solver_failure_is_a_row(tmp_path):
     # A 0.1 ms budget at tol 1e-12: PGS cannot settle a 50-grain stack.
-    table = hard.run(
+    table = hard.STUDY(
         solvers="pgs",
         cases=["tall_stack_50"],
         steps=2,
         tol=1e-12,
         time_limit=1e-4,
-        memory_gb=None,
         out=tmp_path,
         progress=lambda line: None,
     )
@@ -148,13 +146,12 @@ def test_solver_failure_is_a_row(tmp_path):
 
 def test_killed_child_is_a_row(tmp_path):
     # No grace: the wall-clock limit (3 ms) runs out while the child starts.
-    table = hard.run(
+    table = hard.STUDY(
         solvers="clarabel",
         cases=["wedged_grain", "zero_gap"],
         steps=2,
         tol=TOL,
         time_limit=1e-3,
-        memory_gb=None,
         out=tmp_path,
         progress=lambda line: None,
         grace=0.0,

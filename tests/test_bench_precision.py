@@ -133,13 +133,12 @@ def cache(tmp_path_factory):
 def tiny_run(cache, tmp_path_factory):
     out = tmp_path_factory.mktemp("precision")
     lines: list[str] = []
-    table = precision.run(
+    table = precision.STUDY(
         solvers="clarabel,scs-dual",
         tols=[1e-8, 1e-3],
         n2d=30,
         n3d=20,
         time_limit=60.0,
-        memory_gb=None,
         out=out,
         progress=lines.append,
     )
@@ -231,7 +230,7 @@ def test_bad_input_raises_cocd_error(tmp_path, kwargs, message):
     )
     args.update(kwargs)
     with pytest.raises(CocdError, match=message):
-        precision.run(**args)  # type: ignore[arg-type]
+        precision.STUDY(**args)  # type: ignore[arg-type]
     assert not (tmp_path / "precision.csv").exists()
 
 
@@ -275,13 +274,12 @@ def test_reference_falls_back_when_clarabel_is_not_accurate_enough(cache, monkey
 def test_a_time_out_skips_the_tighter_tolerances(cache, tmp_path):
     # No solve of a 30-disc problem fits in 0.1 ms: the first run is over the
     # limit, so the tighter one is not attempted.
-    table = precision.run(
+    table = precision.STUDY(
         solvers="clarabel",
         tols=[1e-8, 1e-3],
         n2d=30,
         n3d=0,
         time_limit=1e-4,
-        memory_gb=None,
         out=tmp_path,
         progress=lambda _line: None,
     )

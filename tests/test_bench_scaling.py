@@ -30,13 +30,12 @@ def test_fit_exponent_recovers_a_power_law():
 def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
     monkeypatch.setattr(scaling, "T_START_2D", 0.005)
     out = tmp_path / "results"
-    table = scaling.run(
+    table = scaling.STUDY(
         solvers="ipm,clarabel",
         n2d=[30, 60],
         n3d=[8, 27],
         steps=2,
         time_limit=60.0,
-        memory_gb=None,
         out=out,
         trajectory="clarabel",
         progress=lambda line: None,
@@ -58,8 +57,8 @@ def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
     assert "exponent" in text and "ipm" in text
     assert (out / "scaling.png").stat().st_size > 5000
     with pytest.raises(CocdError, match="steps must be >= 1"):
-        scaling.run(
-            solvers="ipm", n2d=[30], n3d=[], steps=0, time_limit=1.0, memory_gb=None, out=out
+        scaling.STUDY(
+            solvers="ipm", n2d=[30], n3d=[], steps=0, time_limit=1.0, out=out
         )
 
 
@@ -67,13 +66,12 @@ def test_scaling_real_packings_have_granular_contact_counts(tmp_path, cache):
     # The seed's column mid-flow (warm-started for apgd) and a rain-deposited box at
     # rest have the potential contacts of a random packing (over 5 per sphere, walls
     # included, at 60 spheres), the cubic lattice about half as many.
-    table = scaling.run(
+    table = scaling.STUDY(
         solvers="apgd,ipm",
         n2d=[],
         n3d=[60],
         steps=1,
         time_limit=120.0,
-        memory_gb=None,
         out=tmp_path,
         progress=lambda line: None,
     )
@@ -93,20 +91,19 @@ def test_scaling_real_packings_have_granular_contact_counts(tmp_path, cache):
         (p, s) for p in ("column", "box", "jammed_box") for s in ("apgd", "ipm")
     }
     with pytest.raises(CocdError, match="unknown 3D packing 'rain'"):
-        scaling.run(solvers="apgd", n2d=[], n3d=[8], steps=1, time_limit=1.0,
-                    memory_gb=None, out=tmp_path, packings=["rain"])  # fmt: skip
+        scaling.STUDY(solvers="apgd", n2d=[], n3d=[8], steps=1, time_limit=1.0,
+                    out=tmp_path, packings=["rain"])  # fmt: skip
 
 
 def test_scaling_skips_larger_sizes_after_a_time_limit(tmp_path):
     # A time limit no backend can meet: apgd stops on it at the first size and
     # is not tried at the next one.
-    table = scaling.run(
+    table = scaling.STUDY(
         solvers="apgd",
         n2d=[],
         n3d=[8, 27],
         steps=1,
         time_limit=1e-9,
-        memory_gb=None,
         out=tmp_path,
         progress=lambda line: None,
         packings=["jammed_box"],
@@ -160,13 +157,12 @@ def test_scaling_takes_2d_rows_from_table1(tmp_path, cache):
     ]
     path = tmp_path / "table1.csv"
     pd.DataFrame(rows).to_csv(path, index=False)
-    table = scaling.run(
+    table = scaling.STUDY(
         solvers="ipm",
         n2d=[],
         n3d=[8],
         steps=1,
         time_limit=60.0,
-        memory_gb=None,
         out=tmp_path / "out",
         table1=path,
         progress=lambda line: None,
@@ -188,10 +184,10 @@ def test_scaling_cli_rejects_an_unknown_packing_in_one_line(tmp_path):
 
 
 def test_scaling_resume_keeps_the_rows_it_has(tmp_path):
-    kw = dict(solvers="apgd", n2d=[], steps=1, time_limit=60.0, memory_gb=None, out=tmp_path,
+    kw = dict(solvers="apgd", n2d=[], steps=1, time_limit=60.0, out=tmp_path,
               progress=lambda line: None, packings=["jammed_box"])  # fmt: skip
-    first = scaling.run(n3d=[8], **kw)
-    again = scaling.run(n3d=[8, 27], resume=True, **kw)
+    first = scaling.STUDY(n3d=[8], **kw)
+    again = scaling.STUDY(n3d=[8, 27], resume=True, **kw)
     assert list(again.N) == [8, 27] and (again.steps_ok == "1/1").all()
     kept = again[again.N == 8].iloc[0]
     assert kept.time_per_step_s == first.time_per_step_s.iloc[0]

@@ -34,7 +34,7 @@ def result(tmp_path_factory):
     """clarabel at 1e-8, apgd loose (1e-1) and tight (1e-6), in process."""
     out = tmp_path_factory.mktemp("stability")
     lines: list[str] = []
-    table = stability.run(
+    table = stability.STUDY(
         solvers="clarabel,apgd",
         eps_list=[1e-1, 1e-6, 1e-8],
         out=out,
@@ -125,13 +125,13 @@ def test_loose_tolerance_sets_box_in_motion(result):
 def test_bad_inputs_raise(change, tmp_path):
     kwargs = {**BASE, "eps_list": [1e-8], **change}
     with pytest.raises(CocdError):
-        stability.run(solvers="clarabel", out=tmp_path, **kwargs)
+        stability.STUDY(solvers="clarabel", out=tmp_path, **kwargs)
     assert not (tmp_path / "stability.csv").exists()
 
 
 def test_unknown_solver_raises(tmp_path):
     with pytest.raises(SolverNotFound):
-        stability.run(solvers="no-such-solver", eps_list=[1e-8], out=tmp_path, **BASE)
+        stability.STUDY(solvers="no-such-solver", eps_list=[1e-8], out=tmp_path, **BASE)
     assert issubclass(SolverNotFound, CocdError)
 
 
@@ -149,7 +149,7 @@ def test_backend_failure_is_a_row(tmp_path, monkeypatch):
     monkeypatch.setattr(solvers, "solve", flaky)
     monkeypatch.setattr(stability, "PROGRESS_S", 0.0)  # a line for every step
     lines: list[str] = []
-    table = stability.run(
+    table = stability.STUDY(
         solvers="clarabel",
         eps_list=[1e-8, 1e-6],
         out=tmp_path,
@@ -177,7 +177,7 @@ def test_run_budget_stops_a_slow_run(tmp_path, monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(solvers, "solve", slow)
-    table = stability.run(
+    table = stability.STUDY(
         solvers="clarabel",
         eps_list=[1e-8],
         out=tmp_path,
@@ -192,14 +192,14 @@ def test_run_budget_stops_a_slow_run(tmp_path, monkeypatch):
     meta = json.loads((tmp_path / "stability.meta.json").read_text())
     assert f"budget spent at step {row['steps_done']}" in meta["summary"]
     with pytest.raises(CocdError, match="run_budget"):
-        stability.run(solvers="clarabel", eps_list=[1e-8], out=tmp_path, run_budget=0.0, **BASE)
+        stability.STUDY(solvers="clarabel", eps_list=[1e-8], out=tmp_path, run_budget=0.0, **BASE)
 
 
 def test_child_failure_and_hang_are_rows(tmp_path):
     """In a child process: a backend error is a row; so is a child killed by the watchdog."""
     # One iteration per solve: clarabel stops with status max_iter at step 1, on any
     # machine (a microsecond time limit let a lightly loaded one finish a tiny solve).
-    table = stability.run(
+    table = stability.STUDY(
         solvers="clarabel:max_iter=1",
         eps_list=[1e-8],
         out=tmp_path / "error",
@@ -210,7 +210,7 @@ def test_child_failure_and_hang_are_rows(tmp_path):
     assert row["steps_done"] == 0 and not row["at_rest"]
     assert "SolverError" in row["note"] and "status max_iter" in row["note"]
     # No grace: the child cannot even start within 1.5 ms, so it is killed as hung.
-    table = stability.run(
+    table = stability.STUDY(
         solvers="clarabel",
         eps_list=[1e-8],
         out=tmp_path / "hang",

@@ -17,7 +17,7 @@ from cocd.studies import _table1_report, table1
 
 # Scale 0.001 gives columns of 20 and 51 discs (the seed's 1109 and 8308 fall under the
 # 20-disc floor, 20488 rounds to 20, 50772 to 51).
-TINY = dict(scale=0.001, cases=["2d"], steps=2, memory_gb=None, t_start_2d=0.02)
+TINY = dict(scale=0.001, cases=["2d"], steps=2, t_start_2d=0.02)
 
 
 @pytest.fixture
@@ -30,7 +30,7 @@ def cache(tmp_path, monkeypatch):
 def test_table1_tiny_run(tmp_path, cache):
     out = tmp_path / "results"
     lines: list[str] = []
-    df = table1.run(
+    df = table1.STUDY(
         solvers="clarabel,scs-dual", time_limit=60.0, out=out, progress=lines.append, **TINY
     )
     for name in ("table1.csv", "table1.md", "table1.meta.json"):
@@ -101,9 +101,9 @@ def test_fastest_backend_needs_every_step_optimal():
 def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):
     """Rows already in table1.csv are kept as they are; only missing ones are solved."""
     out = tmp_path / "results"
-    first = table1.run(solvers="clarabel", time_limit=60.0, out=out, progress=print, **TINY)
+    first = table1.STUDY(solvers="clarabel", time_limit=60.0, out=out, progress=print, **TINY)
     lines: list[str] = []
-    again = table1.run(
+    again = table1.STUDY(
         solvers="clarabel,apgd",
         time_limit=60.0,
         out=out,
@@ -124,7 +124,7 @@ def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):
     assert len(csv[csv.source == "this machine"]) == 4
     # Every row read back: nothing is solved or recorded the third time.
     lines.clear()
-    table1.run(
+    table1.STUDY(
         solvers="clarabel,apgd",
         time_limit=60.0,
         out=out,
@@ -135,14 +135,14 @@ def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):
     assert sum("every row read from the previous table" in line for line in lines) == 2
     (out / "table1.csv").write_text("not,a,table\n1,2,3\n")
     with pytest.raises(CocdError, match="cannot resume"):
-        table1.run(solvers="clarabel", time_limit=60.0, out=out, resume=True, **TINY)
+        table1.STUDY(solvers="clarabel", time_limit=60.0, out=out, resume=True, **TINY)
 
 
 def test_table1_timeout_is_a_row(tmp_path, cache):
     # pgs checks its deadline before its first sweep, and its set-up alone takes longer
     # than this limit: a cheap, deterministic time-out.
     out = tmp_path / "results"
-    df = table1.run(
+    df = table1.STUDY(
         solvers="pgs",
         time_limit=1e-6,
         out=out,
@@ -158,7 +158,7 @@ def test_table1_timeout_is_a_row(tmp_path, cache):
 
 def test_table1_row_budget_stops_a_row(tmp_path, cache):
     # Any solve takes more than a nanosecond: each row stops after its first step.
-    df = table1.run(
+    df = table1.STUDY(
         solvers="clarabel",
         time_limit=60.0,
         out=tmp_path / "results",
@@ -170,7 +170,7 @@ def test_table1_row_budget_stops_a_row(tmp_path, cache):
     assert row.steps_ok == "1/2"
     assert "row budget of 1e-09 s spent after 1 steps" in row.note
     with pytest.raises(CocdError, match="row budget must be > 0"):
-        table1.run(solvers="clarabel", time_limit=60.0, out=tmp_path, row_budget=0.0, **TINY)
+        table1.STUDY(solvers="clarabel", time_limit=60.0, out=tmp_path, row_budget=0.0, **TINY)
 
 
 @pytest.mark.parametrize(
@@ -189,7 +189,7 @@ def test_table1_bad_arguments_raise(tmp_path, cache, kwargs, message):
     args = dict(solvers="clarabel", time_limit=10.0, out=tmp_path, **TINY)
     args.update(kwargs)
     with pytest.raises(CocdError, match=message.replace("(", r"\(").replace(")", r"\)")):
-        table1.run(progress=lambda line: None, **args)
+        table1.STUDY(progress=lambda line: None, **args)
     assert not (tmp_path / "table1.csv").exists()
 
 
@@ -258,13 +258,12 @@ def test_table1_3d_time_limit_skips_tighter_eps(tmp_path, cache, monkeypatch):
     FakeWorker.calls = []
     monkeypatch.setattr(table1, "record_steps", fake_record)
     monkeypatch.setattr(table1, "Worker", FakeWorker)
-    df = table1.run(
+    df = table1.STUDY(
         solvers="clarabel,scs-dual",
         scale=0.0001,
         cases=["3d"],
         steps=3,
         time_limit=600.0,
-        memory_gb=None,
         out=tmp_path,
         progress=lambda line: None,
     )

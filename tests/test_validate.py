@@ -31,14 +31,8 @@ def _quiet(lines):
 
 def test_smaller_time_steps_converge(tmp_path):
     lines: list[str] = []
-    table = timestep.STUDY(
-        n=30,
-        dts=[2e-3, 1e-3, 5e-4],
-        times=[0.02, 0.06],
-        solver="clarabel",
-        out=tmp_path,
-        progress=lines.append,
-    )
+    case = dict(n=30, dts=[2e-3, 1e-3, 5e-4], times=[0.02, 0.06], solver="clarabel")
+    table = timestep.STUDY(out=tmp_path, progress=lines.append, **case)
     assert sorted(table.dt.unique()) == [5e-4, 1e-3, 2e-3]
     for t in (0.02, 0.06):
         err = table[table.t == t].set_index("dt").profile_error
@@ -59,14 +53,7 @@ def test_smaller_time_steps_converge(tmp_path):
     assert write_readme(tmp_path).read_text().startswith("# Validation against the seed papers")
     # Run again: every run file is complete, so nothing is stepped, same table.
     again: list[str] = []
-    table2 = timestep.STUDY(
-        n=30,
-        dts=[2e-3, 1e-3, 5e-4],
-        times=[0.02, 0.06],
-        solver="clarabel",
-        out=tmp_path,
-        progress=again.append,
-    )
+    table2 = timestep.STUDY(out=tmp_path, progress=again.append, **case)
     assert not any("step " in line for line in again)
     pd.testing.assert_frame_equal(table.drop(columns="compute_s"), table2.drop(columns="compute_s"))
 

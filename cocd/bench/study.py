@@ -103,7 +103,8 @@ class Study:
     settings : type
         A dataclass of the options; :func:`option` declares each field.
     run : callable
-        Called with the settings' fields as keywords and ``out`` (a Path).
+        ``run(settings, *, out, progress=print, ...)``: the settings object, the output
+        folder, and keywords that are not options (``progress``, test hooks).
     outputs : tuple of str
         The names of the tables it writes under ``out`` (``<name>.csv``,
         ``<name>.md``, ``<name>.meta.json``).
@@ -138,7 +139,7 @@ class Study:
         extra = {k: v for k, v in changes.items() if k not in names}
         settings = dataclasses.replace(settings, **{k: v for k, v in changes.items() if k in names})
         where = Path(out) if out is not None else DEFAULT_OUT[self.group]
-        result = self.run(**_fields(settings), out=where, **extra)
+        result = self.run(settings, out=where, **extra)
         from cocd.bench.report import write_readme
 
         write_readme(where, heading=HEADINGS[self.group])
@@ -209,11 +210,6 @@ def parse_list(text: str, kind: Kind, what: str) -> tuple[Any, ...]:
     if kind == "numbers" and not all(math.isfinite(v) for v in values):
         raise CocdError(f"{what} must be finite numbers, got {text!r}")
     return values
-
-
-def _fields(settings: Any) -> dict[str, Any]:
-    values = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}
 
 
 def _flag(f: dataclasses.Field) -> str:

@@ -31,8 +31,9 @@ from cocd.bench.states import StepSequence, record_steps
 from cocd.bench.study import option
 from cocd.builders import box_3d, column_2d
 from cocd.errors import CocdError
+from cocd.problem import ConicProblem
 
-__all__ = ["COLUMNS", "STUDY", "Settings", "one_step", "run"]
+__all__ = ["COLUMNS", "STUDY", "Settings", "one_step", "run", "timed_row"]
 
 COLUMNS = [
     "problem",
@@ -68,6 +69,31 @@ def one_step(dim: int, n: int, n_steps: int = 1, progress: Any = None) -> StepSe
     )
 
 
+def timed_row(
+    worker: Worker,
+    seq: StepSequence,
+    problem: ConicProblem,
+    name: str,
+    cfg: Any,
+    ref_u: Any,
+    progress: Any,
+    start: str = "",
+    **solve: Any,
+) -> dict[str, Any]:
+    """``name`` on ``problem`` in ``worker`` after a tiny problem that loads its compiled
+    code; the row carries the case's columns and is reported in one line."""
+    worker.solve_row(warmup_problem(seq.dim), name, cfg.tol)
+    row = worker.solve_row(problem, name, cfg.tol, time_limit=cfg.time_limit, ref_u=ref_u, **solve)
+    row.update(
+        problem=seq.label, dim=seq.dim, N=seq.n_free, Nc=problem.nc, tol=cfg.tol, start=start
+    )
+    progress(
+        f"{seq.label}: {name} {start}: {row['status']}, {row['iterations']} it, "
+        f"{row['wall_s']:.3g} s, ccp {row['ccp_residual']:.2e} {row.get('note') or ''}"
+    )
+    return row
+
+
 @dataclass(frozen=True)
 class Settings:
     """The options of ``cocd bench backends``."""
@@ -80,25 +106,15 @@ class Settings:
     memory_gb: float | None = study.memory_gb()
 
 
-def run(
-    *,
-    solvers: str | list[str] | None,
-    n2d: int,
-    n3d: int,
-    tol: float,
-    time_limit: float,
-    memory_gb: float | None,
-    out: Path,
-    progress: Any = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
     """Every backend on one step of each case; writes ``backends.csv`` and ``.md``."""
-    for name, value in (("n2d", n2d), ("n3d", n3d)):
+    for name, value in (("n2d", cfg.n2d), ("n3d", cfg.n3d)):
         if int(value) != value or value < 2:
             raise CocdError(f"{name} must be an integer >= 2, got {value!r}")
-    names = solver_names(solvers) or backends.available()  # unknown names fail here
-    memory = default_memory_gb() if memory_gb is None else memory_gb
+    names = solver_names(cfg.solvers) or backends.available()  # unknown names fail here
+    memory = default_memory_gb() if cfg.memory_gb is None else cfg.memory_gb
     rows = []
-    for dim, n in ((2, n2d), (3, n3d)):
+    for dim, n in ((2, cfg.n2d), (3, cfg.n3d)):
         seq = one_step(dim, int(n), progress=report.throttled(progress, 10.0))
         problem = seq.problems[0]
         ref = backends.solve(problem, "clarabel", tol=REFERENCE_TOL)
@@ -110,18 +126,13 @@ def run(
                     if info.first_order or "cvxpy" in name:
                         continue
                     run_name = f"{name}:facets=8"
-                worker.solve_row(warmup_problem(dim), run_name, tol)  # load compiled code
-                row = worker.solve_row(problem, run_name, tol, time_limit=time_limit, ref_u=ref.u)
-                row.update(problem=seq.label, dim=dim, N=seq.n_free, Nc=problem.nc, tol=tol)
-                progress(
-                    f"{seq.label}: {run_name}: {row['status']}, {row['wall_s']:.3g} s, "
-                    f"ccp {row['ccp_residual']:.2e} {row.get('note') or ''}"
-                )
+                row = timed_row(worker, seq, problem, run_name, cfg, ref.u, progress)
                 rows.append({c: row.get(c) for c in COLUMNS})
     table = pd.DataFrame(rows, columns=COLUMNS)
     title = "Every backend on one step"
     intro = (
-        f"tol {tol:g}, time limit {time_limit:g} s and memory cap {memory:g} GiB per backend; "
+        f"tol {cfg.tol:g}, time limit {cfg.time_limit:g} s and memory cap {memory:g} GiB "
+        "per backend; "
         "`u_error` against clarabel at tol 1e-10."
     )
     files = report.write_table(out, "backends", table, title=title, intro=intro)

@@ -79,48 +79,19 @@ class Settings:
     memory_gb: float | None = study.memory_gb()
 
 
-def run(
-    *,
-    folder: Path,
-    solvers: str | list[str] | None,
-    tol: float,
-    time_limit: float,
-    memory_gb: float | None,
-    out: Path,
-    coulomb_target: float = 1e-6,
-    progress: Callable[[str], None] = print,
-) -> pd.DataFrame:
-    """Solve every problem of ``folder`` with every backend; write the table and profiles.
-
-    Parameters
-    ----------
-    folder : Path
-        Problem files (``*.hdf5``, ``*.h5``, ``*.dat``).
-    solvers : str or list of str, optional
-        Backends; default :data:`EXTERNAL_SOLVERS` (those available here).
-    tol : float
-        Tolerance asked of every backend, and the ``ccp_residual`` a backend
-        must reach for its answer to count as solving the convex problem.
-    time_limit : float
-        Seconds per solve.
-    memory_gb : float, optional
-        Memory cap of the child process (GiB).
-    out : Path
-        Output folder for ``external.{csv,md}``, ``external_profiles.png``.
-    coulomb_target : float
-        ``natural_map_error`` an answer must reach to count as solving Coulomb's law.
-    """
-    if not (math.isfinite(tol) and tol > 0):
-        raise CocdError(f"tol must be a finite number > 0, got {tol!r}")
-    if not (math.isfinite(time_limit) and time_limit > 0):
-        raise CocdError(f"time limit must be > 0 seconds, got {time_limit!r}")
-    if not (math.isfinite(coulomb_target) and coulomb_target > 0):
-        raise CocdError(f"the Coulomb target must be > 0, got {coulomb_target!r}")
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) -> pd.DataFrame:
+    """Solve every problem of ``folder`` with every backend; write the table and profiles."""
+    if not (math.isfinite(cfg.tol) and cfg.tol > 0):
+        raise CocdError(f"tol must be a finite number > 0, got {cfg.tol!r}")
+    if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):
+        raise CocdError(f"time limit must be > 0 seconds, got {cfg.time_limit!r}")
+    if not (math.isfinite(cfg.coulomb_target) and cfg.coulomb_target > 0):
+        raise CocdError(f"the Coulomb target must be > 0, got {cfg.coulomb_target!r}")
     from cocd.io import read_problem
 
-    files = _files(Path(folder))
-    names = solvers if solvers is not None else [n for n in EXTERNAL_SOLVERS if _usable(n)]
-    memory = default_memory_gb() if memory_gb is None else float(memory_gb)
+    files = _files(Path(cfg.folder))
+    names = cfg.solvers if cfg.solvers is not None else [n for n in EXTERNAL_SOLVERS if _usable(n)]
+    memory = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
     problems: dict[Path, Any] = {}
     for path in files:
         try:
@@ -163,10 +134,10 @@ def run(
             convert = time.perf_counter() - start
             for solver in chosen:
                 if (solver, problem.dim) not in warmed:
-                    worker.solve_row(warmup_problem(problem.dim), solver, tol, time_limit=60.0)
+                    worker.solve_row(warmup_problem(problem.dim), solver, cfg.tol, time_limit=60.0)
                     warmed.add((solver, problem.dim))
                 got = worker.solve_row(
-                    conic, solver, tol, time_limit=time_limit, keep_solution=True
+                    conic, solver, cfg.tol, time_limit=cfg.time_limit, keep_solution=True
                 )
                 row = {
                     **base,
@@ -190,7 +161,7 @@ def run(
                     f"{row['natural_map_error']:.1e}  {row['wall_s']:.3f} s"
                 )
     table = pd.DataFrame(rows, columns=COLUMNS)
-    _write(table, out, tol=tol, time_limit=time_limit, coulomb_target=coulomb_target)
+    _write(table, out, tol=cfg.tol, time_limit=cfg.time_limit, coulomb_target=cfg.coulomb_target)
     return table
 
 

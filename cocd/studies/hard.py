@@ -413,76 +413,45 @@ class Settings:
 
 
 def run(
-    *,
-    solvers: str | list[str] | None,
-    cases: list[str] | None,
-    steps: int,
-    tol: float,
-    time_limit: float,
-    memory_gb: float | None,
-    out: Path,
-    progress: Callable[[str], None] = print,
-    grace: float = 30.0,
+    cfg: Settings, *, out: Path, progress: Callable[[str], None] = print, grace: float = 30.0
 ) -> pd.DataFrame:
     """Step every hard case with every backend; write ``hard.{csv,md,png}`` and the matrix.
 
-    Parameters
-    ----------
-    solvers : str or list of str, optional
-        Backends (comma-separated or a list); default the harness's set
-        (:data:`cocd.bench.DEFAULT_SOLVERS`). Those that do not handle a
-        case's dimension are left out of that case.
-    cases : list of str, optional
-        Names from :data:`cocd.builders.HARD_CASES`; default all.
-    steps : int
-        Steps per case and backend (>= 1).
-    tol : float
-        Tolerance asked of every backend.
-    time_limit : float
-        Seconds per solve given to the backend; the child is killed after
-        ``1.5 * steps * time_limit + grace`` seconds on one case.
-    memory_gb : float, optional
-        Address-space cap of the child (GiB); default three quarters of RAM.
-    out : Path
-        Output directory.
-    progress : callable
-        Called with one line per finished row.
-    grace : float
-        Seconds added to the wall-clock limit (start-up of the child, detection).
+    ``grace``: seconds added to the wall-clock limit (start-up of the child, detection).
 
     Returns
     -------
     pandas.DataFrame
         One row per case and backend, columns :data:`COLUMNS`.
     """
-    names = list(HARD_CASES) if cases is None else list(cases)
+    names = list(HARD_CASES) if cfg.cases is None else list(cfg.cases)
     unknown = [c for c in names if c not in HARD_CASES]
     if unknown or not names:
         raise CocdError(
             f"unknown hard case(s) {', '.join(map(repr, unknown)) or '(none given)'}; "
             f"known: {', '.join(HARD_CASES)}"
         )
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise CocdError(f"steps must be an integer >= 1, got {steps!r}")
-    if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
-        raise CocdError(f"tol must be a finite number > 0, got {tol!r}")
-    if not (math.isfinite(time_limit) and time_limit > 0):
-        raise CocdError(f"time limit must be > 0 seconds, got {time_limit!r}")
-    if memory_gb is not None and not (memory_gb > 0):
-        raise CocdError(f"memory cap must be > 0 GiB, got {memory_gb!r}")
-    memory = default_memory_gb() if memory_gb is None else float(memory_gb)
+    if isinstance(cfg.steps, bool) or not isinstance(cfg.steps, int) or cfg.steps < 1:
+        raise CocdError(f"steps must be an integer >= 1, got {cfg.steps!r}")
+    if not (isinstance(cfg.tol, (int, float)) and math.isfinite(cfg.tol) and cfg.tol > 0):
+        raise CocdError(f"tol must be a finite number > 0, got {cfg.tol!r}")
+    if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):
+        raise CocdError(f"time limit must be > 0 seconds, got {cfg.time_limit!r}")
+    if cfg.memory_gb is not None and not (cfg.memory_gb > 0):
+        raise CocdError(f"memory cap must be > 0 GiB, got {cfg.memory_gb!r}")
+    memory = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
 
     scenes = {name: HARD_CASES[name]() for name in names}
     dims = {name: scene.dim for name, scene in scenes.items()}
-    chosen = {d: select_solvers(solvers, d) for d in sorted(set(dims.values()))}
+    chosen = {d: select_solvers(cfg.solvers, d) for d in sorted(set(dims.values()))}
     if not any(chosen.values()):
         raise CocdError(
-            f"none of the solvers {solvers!r} handles the {'/'.join(map(str, chosen))}D "
+            f"none of the solvers {cfg.solvers!r} handles the {'/'.join(map(str, chosen))}D "
             "hard cases chosen"
         )
     estimate.announce(
         "hard",
-        [(scene.n_free, steps * len(chosen[scene.dim])) for scene in scenes.values()],
+        [(scene.n_free, cfg.steps * len(chosen[scene.dim])) for scene in scenes.values()],
         out=Path(out),
         progress=progress,
     )
@@ -495,10 +464,10 @@ def run(
                 job = dict(
                     case=case,
                     solver=solver,
-                    steps=int(steps),
+                    steps=int(cfg.steps),
                     dt=case_dt(case),
-                    tol=float(tol),
-                    time_limit=float(time_limit),
+                    tol=float(cfg.tol),
+                    time_limit=float(cfg.time_limit),
                 )
                 start = time.perf_counter()
                 head, records, end = _run(worker, job, grace)
@@ -514,7 +483,7 @@ def run(
 
     title = "Hard cases: every backend on every stress case"
     intro = (
-        f"{steps} steps per case, tol {tol:g}, time limit {time_limit:g} s per solve. "
+        f"{cfg.steps} steps per case, tol {cfg.tol:g}, time limit {cfg.time_limit:g} s per solve. "
         "status: `ok` when every step was optimal; `N`: free grains; `Nc`: most contacts; "
         "residuals: largest over the steps; `time_per_step_s`: mean solve wall time; "
         "`energy_drift`: largest (E - E0) / max(Ek0, sum m g d), positive = energy created."
@@ -524,7 +493,7 @@ def run(
     matrix_path = out / "hard_matrix.md"
     matrix_path.write_text(f"# {title}: status and residual\n\n{matrix}\n")
     files.append(matrix_path)
-    files.append(_heatmap(table, out / "hard.png", float(tol)))
+    files.append(_heatmap(table, out / "hard.png", float(cfg.tol)))
     write_meta(out, "hard", title=title, files=files, summary=matrix)
     return table
 

@@ -20,9 +20,9 @@ import pandas as pd
 
 import solvers as backends
 from cocd.bench import report, solver_names, study
-from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
+from cocd.bench.runner import Worker, default_memory_gb
 from cocd.bench.study import option
-from cocd.studies.backends import REFERENCE_TOL, one_step
+from cocd.studies.backends import REFERENCE_TOL, one_step, timed_row
 
 __all__ = ["COLUMNS", "STUDY", "Settings", "run"]
 
@@ -54,47 +54,28 @@ class Settings:
     memory_gb: float | None = study.memory_gb()
 
 
-def run(
-    *,
-    solvers: str | list[str],
-    n: int,
-    tol: float,
-    time_limit: float,
-    memory_gb: float | None,
-    out: Path,
-    progress: Any = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
     """Each backend cold and warm on one step; writes ``iterative.csv`` and ``.md``."""
-    names = ["clarabel", *solver_names(solvers)]  # unknown names fail here
+    names = ["clarabel", *solver_names(cfg.solvers)]  # unknown names fail here
     infos = {name: backends.get(name) for name in names}
-    seq = one_step(2, n, n_steps=2, progress=report.throttled(progress, 10.0))
+    seq = one_step(2, cfg.n, n_steps=2, progress=report.throttled(progress, 10.0))
     problem, warm = seq.problems[1], seq.warm_starts[1]
     ref = backends.solve(problem, "clarabel", tol=REFERENCE_TOL)
-    memory = default_memory_gb() if memory_gb is None else memory_gb
+    memory = default_memory_gb() if cfg.memory_gb is None else cfg.memory_gb
     rows = []
     with Worker(memory_gb=memory, grace=60.0) as worker:
         for name in names:
-            worker.solve_row(warmup_problem(2), name, tol)
             for start in ("cold", "warm") if infos[name].warm_start else ("cold",):
-                row = worker.solve_row(
-                    problem,
-                    name,
-                    tol,
-                    warm_start=warm if start == "warm" else None,
-                    time_limit=time_limit,
-                    ref_u=ref.u,
-                )
-                row.update(problem=seq.label, N=seq.n_free, Nc=problem.nc, start=start, tol=tol)
-                progress(
-                    f"{name} {start}: {row['status']}, {row['iterations']} it, "
-                    f"{row['wall_s']:.3g} s, ccp {row['ccp_residual']:.2e}"
+                guess = warm if start == "warm" else None
+                row = timed_row(
+                    worker, seq, problem, name, cfg, ref.u, progress, start, warm_start=guess
                 )
                 rows.append({c: row.get(c) for c in COLUMNS})
     table = pd.DataFrame(rows, columns=COLUMNS)
     title = "Iterative backends, cold and warm"
     intro = (
         f"2D column, N = {seq.n_free}, Nc = {problem.nc}, t = {seq.t_start + seq.dt:.3f} s, "
-        f"dt = {seq.dt:g} s; tol {tol:g}. `u_error` is against clarabel at tol 1e-10, "
+        f"dt = {seq.dt:g} s; tol {cfg.tol:g}. `u_error` is against clarabel at tol 1e-10, "
         "relative to max(||u_ref||, ||U||); `wall_s` is the wall-clock time of the solve."
     )
     files = report.write_table(out, "iterative", table, title=title, intro=intro)

@@ -173,57 +173,26 @@ class Settings:
     memory_gb: float | None = study.memory_gb()
 
 
-def run(
-    *,
-    solvers: str | list[str] | None,
-    tols: Sequence[float],
-    n2d: int,
-    n3d: int,
-    time_limit: float,
-    memory_gb: float | None,
-    out: Path,
-    progress: Callable[[str], None] = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) -> pd.DataFrame:
     """Sweep ``tols`` with every backend on the 2D and 3D problems; write tables and plots.
-
-    Parameters
-    ----------
-    solvers : str or list of str, optional
-        Backends (comma-separated or a list); default the harness's set
-        (:func:`~cocd.bench.select_solvers`), per dimension.
-    tols : sequence of float
-        Tolerances asked of each backend, swept loosest first. Once a backend
-        times out on a problem, its tighter tolerances there are skipped.
-    n2d, n3d : int
-        Discs in the 2D column and spheres in the 3D box; 0 skips that
-        dimension.
-    time_limit : float
-        Seconds per solve (the backend's limit; its process is killed after
-        ``1.5 time_limit + 30`` s).
-    memory_gb : float, optional
-        Memory cap of the backend process (default 3/4 of the machine's).
-    out : Path
-        Output directory.
-    progress : callable
-        Called with one line of text per step of the work.
 
     Returns
     -------
     DataFrame
         The rows of ``precision.csv``.
     """
-    tol_list = _check(tols, n2d, n3d, time_limit, memory_gb)
-    cases = _cases(n2d, n3d)
-    chosen = {case.label: select_solvers(solvers, case.dim) for case in cases}
+    tol_list = _check(cfg.tols, cfg.n2d, cfg.n3d, cfg.time_limit, cfg.memory_gb)
+    cases = _cases(cfg.n2d, cfg.n3d)
+    chosen = {case.label: select_solvers(cfg.solvers, case.dim) for case in cases}
     if not any(chosen.values()):
         raise CocdError(
-            f"none of the solvers {solvers!r} handles the requested problems "
-            f"(n2d = {n2d}, n3d = {n3d})"
+            f"none of the solvers {cfg.solvers!r} handles the requested problems "
+            f"(n2d = {cfg.n2d}, n3d = {cfg.n3d})"
         )
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    sizes = {"column-2d": n2d, "box-3d": n3d}
+    sizes = {"column-2d": cfg.n2d, "box-3d": cfg.n3d}
     estimate.announce(
         "precision",
         [
@@ -248,9 +217,9 @@ def run(
     rows: list[dict[str, Any]] = []
     plan = [(i, n, s) for i in instances for n in chosen[i.label] for s in _starts(i, n)]
     total, count = len(plan) * len(tol_list), 0
-    memory = default_memory_gb() if memory_gb is None else memory_gb
+    memory = default_memory_gb() if cfg.memory_gb is None else cfg.memory_gb
     with Worker(memory_gb=memory) as worker:
-        jobs = _Jobs(worker, time_limit)
+        jobs = _Jobs(worker, cfg.time_limit)
         for inst, name, start in plan:
             timed_out_at: float | None = None
             for tol in tol_list:
@@ -270,7 +239,7 @@ def run(
                     jobs.warm_up(name, warmups[inst.dim], tol_list[0])
                     warm = inst.warm_start if start == "warm" else None
                     row = jobs.solve(inst, name, tol, warm)
-                    if _timed_out(row, time_limit):
+                    if _timed_out(row, cfg.time_limit):
                         timed_out_at = tol
                 rows.append({**base, **row})
                 progress(f"[{count}/{total}] {_describe(rows[-1])}")
@@ -286,14 +255,14 @@ def run(
     analysed = with_cold_runs_as_warm(table, warm_capable_set)
     keys = [(i.label, s) for i in instances for s in STARTS]
     costs = {
-        target: costs_to_target(analysed, target, keys, names, time_limit) for target in TARGETS
+        target: costs_to_target(analysed, target, keys, names, cfg.time_limit) for target in TARGETS
     }
-    sgm = _sgm_by_problems(analysed, instances, chosen, names, time_limit)
+    sgm = _sgm_by_problems(analysed, instances, chosen, names, cfg.time_limit)
     for inst in instances:
         files.append(plot_precision(analysed, inst, names, warm_capable_set, out))
     files.append(plot_profiles(costs, names, len(keys), out))
 
-    intro = _intro(instances, names, time_limit)
+    intro = _intro(instances, names, cfg.time_limit)
     title = "Speed against error: work-precision, performance profiles, geometric means"
     files += write_table(out, "precision_sgm", sgm, title=title, intro=intro)
     summary = intro + "\n\n" + sgm.to_markdown(index=False, floatfmt=".3g")

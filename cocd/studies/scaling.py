@@ -152,22 +152,7 @@ class Settings:
     memory_gb: float | None = study.memory_gb()
 
 
-def run(
-    *,
-    solvers: str | list[str] | None,
-    n2d: list[int],
-    n3d: list[int],
-    steps: int,
-    time_limit: float,
-    memory_gb: float | None,
-    out: Path,
-    trajectory: str = "ipm",
-    progress: Callable[[str], None] = print,
-    table1: Path | None = None,
-    packings: list[str] | None = None,
-    n3d_box: list[int] | None = None,
-    resume: bool = False,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) -> pd.DataFrame:
     """Time every backend at every size; write ``scaling.{csv,md,png}`` and the fits.
 
     ``table1``: a ``table1.csv`` of ``cocd bench table1`` whose 2D rows (this
@@ -179,31 +164,35 @@ def run(
     solve only the others; the table is rewritten after every row, so an
     interrupted run goes on where it stopped.
     """
-    packings = list(PACKINGS_3D) if packings is None else list(packings)
+    packings = list(PACKINGS_3D) if cfg.packings is None else list(cfg.packings)
     unknown = sorted(set(packings) - set(PACKINGS_3D))
     if unknown or not packings:
         raise CocdError(
             f"unknown 3D packing {', '.join(map(repr, unknown)) or '(none given)'}; "
             f"choose from {', '.join(PACKINGS_3D)}"
         )
-    if steps < 1:
-        raise CocdError(f"steps must be >= 1, got {steps}")
-    if not (math.isfinite(time_limit) and time_limit > 0):
-        raise CocdError(f"time limit must be > 0 seconds, got {time_limit!r}")
-    if any(n < 1 for n in [*n2d, *n3d, *(n3d_box or [])]) or not (n2d or n3d or table1 is not None):
-        raise CocdError(f"sizes must be positive integers, got 2D {n2d} and 3D {n3d}")
-    memory = default_memory_gb() if memory_gb is None else float(memory_gb)
-    rows: list[dict[str, Any]] = _table1_rows(table1, solvers) if table1 is not None else []
-    done = _previous_rows(out / "scaling.csv") if resume else {}
+    if cfg.steps < 1:
+        raise CocdError(f"steps must be >= 1, got {cfg.steps}")
+    if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):
+        raise CocdError(f"time limit must be > 0 seconds, got {cfg.time_limit!r}")
+    if any(n < 1 for n in [*cfg.n2d, *cfg.n3d, *(cfg.n3d_box or [])]) or not (
+        cfg.n2d or cfg.n3d or cfg.table1 is not None
+    ):
+        raise CocdError(f"sizes must be positive integers, got 2D {cfg.n2d} and 3D {cfg.n3d}")
+    memory = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
+    rows: list[dict[str, Any]] = (
+        _table1_rows(cfg.table1, cfg.solvers) if cfg.table1 is not None else []
+    )
+    done = _previous_rows(out / "scaling.csv") if cfg.resume else {}
     rows += [r for r in done.values() if r["dim"] == 3]
-    cases = [(2, "column", n) for n in sorted(n2d)]
-    box_sizes = n3d if n3d_box is None else n3d_box
+    cases = [(2, "column", n) for n in sorted(cfg.n2d)]
+    box_sizes = cfg.n3d if cfg.n3d_box is None else cfg.n3d_box
     cases += [
         (3, packing, n)
         for packing in packings
-        for n in sorted(box_sizes if packing == "box" else n3d)
+        for n in sorted(box_sizes if packing == "box" else cfg.n3d)
     ]
-    names = {dim: select_solvers(solvers, dim) for dim in (2, 3)}
+    names = {dim: select_solvers(cfg.solvers, dim) for dim in (2, 3)}
 
     def prep(dim: int, packing: str) -> int:  # steps that make the problems
         if packing != "column":
@@ -213,7 +202,7 @@ def run(
     estimate.announce(
         "scaling",
         [
-            (n, prep(dim, packing) + steps * len(names[dim]))
+            (n, prep(dim, packing) + cfg.steps * len(names[dim]))
             for dim, packing, n in cases
             if names[dim]
         ],
@@ -229,9 +218,11 @@ def run(
             if not todo:
                 continue
             if dim == 2:
-                problems, warms, n_free, detect = _problems_2d(n, steps, trajectory, progress)
+                problems, warms, n_free, detect = _problems_2d(
+                    n, cfg.steps, cfg.trajectory, progress
+                )
             else:
-                problems, warms, n_free, detect = _problems_3d(packing, n, steps, progress)
+                problems, warms, n_free, detect = _problems_3d(packing, n, cfg.steps, progress)
             nc = float(np.mean([p.nc for p in problems]))
             base = {
                 "dim": dim, "packing": packing, "N": int(n), "Nc": nc,
@@ -243,13 +234,15 @@ def run(
                 start = "yes" if warms[0] is not None and solvers_warm(name) else "no"
                 key = (dim, packing, name)
                 if key in given_up:
-                    rows.append(_skipped_row(base, name, start, steps, given_up[key]))
+                    rows.append(_skipped_row(base, name, start, cfg.steps, given_up[key]))
                     continue
                 worker.restart()  # each row's peak memory is its own
                 worker.solve_row(warm, name, eps, time_limit=60.0)
                 answers = []
                 for problem, ws in zip(problems, warms, strict=True):
-                    row = worker.solve_row(problem, name, eps, time_limit=time_limit, warm_start=ws)
+                    row = worker.solve_row(
+                        problem, name, eps, time_limit=cfg.time_limit, warm_start=ws
+                    )
                     answers.append(row)
                     if row["status"] in ("error", "time_limit"):
                         break
@@ -263,7 +256,7 @@ def run(
                         **base,
                         "warm": start,
                         "solver": name,
-                        "steps_ok": f"{sum(a['status'] == 'optimal' for a in answers)}/{steps}",
+                        "steps_ok": f"{sum(a['status'] == 'optimal' for a in answers)}/{cfg.steps}",
                         "iterations": finite_mean(ok, "iterations"),
                         "time_per_step_s": finite_mean(ok, "wall_s"),
                         "ccp_residual": finite_max(answers, "ccp_residual"),
@@ -275,9 +268,9 @@ def run(
                     f"scaling {dim}D {packing} N = {n} Nc = {nc:.0f} {name}: "
                     f"{rows[-1]['time_per_step_s']:.3g} s/step, {rows[-1]['steps_ok']} optimal"
                 )
-                _write(pd.DataFrame(rows, columns=COLUMNS), out, steps, time_limit)
+                _write(pd.DataFrame(rows, columns=COLUMNS), out, cfg.steps, cfg.time_limit)
     table = pd.DataFrame(rows, columns=COLUMNS)
-    _write(table, out, steps, time_limit)
+    _write(table, out, cfg.steps, cfg.time_limit)
     return table
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -128,58 +128,18 @@ class Settings:
 
 
 def run(
+    cfg: Settings,
     *,
-    solvers: str | list[str] | None,
-    eps_list: list[float],
-    n: int,
-    dim: int,
-    t_end: float,
-    dt: float,
-    threshold: float,
-    time_limit: float | None,
     out: Path,
     progress: Callable[[str], Any] = print,
     isolate: bool = True,
     grace: float = GRACE_S,
-    run_budget: float | None = None,
 ) -> pd.DataFrame:
     """Run the stability test and write its tables, plot and provenance under ``out``.
 
-    Parameters
-    ----------
-    solvers : str, list of str or None
-        Backends (comma-separated names or a list); None for the harness's
-        default set (:func:`cocd.bench.select_solvers`). Backends that cannot
-        handle ``dim`` are left out.
-    eps_list : list of float
-        Tolerances asked of every backend, each > 0.
-    n : int
-        Number of grains in the box, >= 1.
-    dim : {2, 3}
-        Discs in a 2D box or spheres in a 3D box.
-    t_end : float
-        Duration in units of ``T = sqrt(H / g)``, > 0; the run takes
-        ``ceil(t_end T / dt)`` steps.
-    dt : float
-        Time step (s), > 0.
-    threshold : float
-        The box counts as at rest while ``Ek / (Ek + Ep)`` stays below this, > 0.
-    time_limit : float or None
-        Seconds per solve passed to the backend; a child that sends no step for
-        ``1.5 time_limit + grace`` seconds is killed. None: no limit.
-    out : Path
-        Output directory.
-    progress : callable
-        Receives one line of text per run (default :func:`print`).
-    isolate : bool
-        Run each (solver, eps) in a child process (default). ``False`` runs in
-        this process: faster for tiny runs, but a native crash ends the command.
-    grace : float
-        Seconds added to the watchdog of isolated runs.
-    run_budget : float or None
-        Wall seconds allowed to one (solver, eps) run; a run that spends them
-        is stopped where it is, keeps the steps it took and is not at rest
-        (its ``note`` says so). None: no budget.
+    ``isolate``: run each (solver, eps) in a child process (default). ``False`` runs in this
+    process: faster for tiny runs, but a native crash ends the command; ``grace``: seconds
+    added to the watchdog of isolated runs.
 
     Returns
     -------
@@ -196,30 +156,32 @@ def run(
         (:class:`~cocd.errors.SolverNotFound`), or no named solver handles
         ``dim``.
     """
-    eps_values = _check(eps_list, n, dim, t_end, dt, threshold, time_limit, grace)
-    if run_budget is not None and not (run_budget > 0.0):
-        raise CocdError(f"run_budget must be > 0 (or None for no budget), got {run_budget!r}")
-    budget = math.inf if run_budget is None else float(run_budget)
-    names = select_solvers(solvers, dim)
+    eps_values = _check(
+        cfg.eps_list, cfg.n, cfg.dim, cfg.t_end, cfg.dt, cfg.threshold, cfg.time_limit, grace
+    )
+    if cfg.run_budget is not None and not (cfg.run_budget > 0.0):
+        raise CocdError(f"run_budget must be > 0 (or None for no budget), got {cfg.run_budget!r}")
+    budget = math.inf if cfg.run_budget is None else float(cfg.run_budget)
+    names = select_solvers(cfg.solvers, cfg.dim)
     if not names:
-        raise CocdError(f"none of the solvers {solvers!r} handles {dim}D problems")
+        raise CocdError(f"none of the solvers {cfg.solvers!r} handles {cfg.dim}D problems")
     out = Path(out)
 
-    progress(f"stability: settling a {dim}D box of {n} grains (rain deposition, cached)")
+    progress(f"stability: settling a {cfg.dim}D box of {cfg.n} grains (rain deposition, cached)")
     start = time.perf_counter()
-    scene = static_box(dim, n_grains=int(n))
+    scene = static_box(cfg.dim, n_grains=int(cfg.n))
     x0, up = floor_reference(scene)
     free = scene.free
     heights = (scene.positions[free] - x0) @ up
     height = float(np.max(heights + scene.radii[free]))
     g = float(np.linalg.norm(scene.gravity))
     period = math.sqrt(height / g)
-    n_steps = max(1, math.ceil(t_end * period / dt - 1e-9))
+    n_steps = max(1, math.ceil(cfg.t_end * period / cfg.dt - 1e-9))
     # Ep from the floor = Ep from the origin (what the stepper records) + this shift.
     ep_shift = float(np.sum(scene.masses[free]) * (x0 @ scene.gravity))
     progress(
         f"stability: N = {scene.n_free}, H = {height:.4g} m, T = sqrt(H/g) = {period:.4g} s, "
-        f"{n_steps} steps of {dt:g} s to t = {t_end:g} T "
+        f"{n_steps} steps of {cfg.dt:g} s to t = {cfg.t_end:g} T "
         f"({time.perf_counter() - start:.1f} s to prepare)"
     )
 
@@ -230,16 +192,18 @@ def run(
         "stability", [(scene.n_free, n_steps * len(runs))], out=out, progress=progress
     )
     for k, (solver, eps) in enumerate(runs, 1):
-        args = (scene.copy(), solver, eps, dt, n_steps, time_limit, ep_shift, period)
+        args = (scene.copy(), solver, eps, cfg.dt, n_steps, cfg.time_limit, ep_shift, period)
         t0 = time.perf_counter()
         on_step = _ticker(progress, f"[{k}/{len(runs)}] {solver} eps={eps:.0e}", n_steps)
         if isolate:
-            steps, note = _run_isolated(args, time_limit, grace, on_step, budget)
+            steps, note = _run_isolated(args, cfg.time_limit, grace, on_step, budget)
         else:
             steps, note = _run_here(args, on_step, budget)
         wall = time.perf_counter() - t0
         series += [{c: s[c] for c in SERIES_COLUMNS} for s in steps]
-        row = _summary_row(steps, note, solver, eps, dim, scene.n_free, dt, n_steps, threshold)
+        row = _summary_row(
+            steps, note, solver, eps, cfg.dim, scene.n_free, cfg.dt, n_steps, cfg.threshold
+        )
         summary.append(row)
         verdict = "at rest" if row["at_rest"] else "NOT at rest"
         failed = f"; {row['note']}" if row["note"] else ""
@@ -251,9 +215,9 @@ def run(
     table = pd.DataFrame(summary, columns=SUMMARY_COLUMNS)
     steps_table = pd.DataFrame(series, columns=SERIES_COLUMNS)
     files = write_stability(
-        out, table, steps_table, threshold, dim, scene.n_free, height, period, dt
+        out, table, steps_table, cfg.threshold, cfg.dim, scene.n_free, height, period, cfg.dt
     )
-    files += write_thresholds(out, table, threshold, dim, t_end, dt)
+    files += write_thresholds(out, table, cfg.threshold, cfg.dim, cfg.t_end, cfg.dt)
     progress(f"stability: wrote {', '.join(str(f) for f in files)}")
     return table
 
@@ -454,7 +418,7 @@ def _summary_row(
 
 # -- checks and outputs ----------------------------------------------------------
 def _check(
-    eps_list: list[float],
+    eps_list: Sequence[float],
     n: int,
     dim: int,
     t_end: float,

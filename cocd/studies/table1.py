@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -134,65 +134,16 @@ class Settings:
 
 
 def run(
+    cfg: Settings,
     *,
-    solvers: str | list[str] | None,
-    scale: float,
-    cases: list[str],
-    steps: int,
-    time_limit: float,
-    memory_gb: float | None,
     out: Path,
     t_start_2d: float = 0.11,
     t_start_3d: float = 1.0,
-    trajectory_solver: str | None = None,
     progress: Callable[[str], None] = print,
-    scale_3d: float | None = None,
-    resume: bool = False,
-    row_budget: float | None = None,
 ) -> pd.DataFrame:
     """Run the Table 1 cases with every selected backend; write ``table1.csv/.md/.meta.json``.
 
-    Parameters
-    ----------
-    solvers : str, list of str or None
-        Backends (comma-separated names or a list); None for the harness's
-        default set (:func:`cocd.bench.select_solvers`). Backends that cannot
-        handle a case's dimension are left out of that case.
-    scale : float
-        Grain counts are the seed's times ``scale``, in (0, 1]; at least
-        20 discs in 2D.
-    scale_3d : float, optional
-        The 3D case's own scale, in (0, 1]; default ``scale``.
-    cases : list of {"2d", "3d"}
-        Which halves of the table.
-    steps : int
-        Step problems averaged per row (the seed: 10).
-    time_limit : float
-        Seconds per solve; a backend that overruns it on a case's first
-        problem is not run on the rest of that case.
-    memory_gb : float or None
-        Memory cap of the backends' process (GiB); default 3/4 of the machine's.
-    out : Path
-        Output directory.
-    t_start_2d, t_start_3d : float
-        Time (s) of the first recorded step, 2D and 3D.
-    trajectory_solver : str, optional
-        Backend that advances the scenes and records the problems (at
-        ``tol = 1e-8``); default ``clarabel`` in 2D and ``clarabel-dual`` in
-        3D, the faster accurate one for each while the column flows (measured
-        on this machine: clarabel 1.7 times faster than scs-dual for 831
-        discs; for 1229 spheres clarabel-dual takes 3 s per step, scs-dual
-        about a minute once the column moves).
-    progress : callable
-        Receives progress lines.
-    resume : bool
-        Keep the rows of this machine already in ``out/table1.csv`` (same
-        case, N, eps and backend) instead of solving them again. The table is
-        rewritten after every row, so an interrupted run resumes where it
-        stopped.
-    row_budget : float, optional
-        Seconds of solving after which a row stops (a slow backend on a large
-        case); its means are over the steps solved and its note says so.
+    ``t_start_2d, t_start_3d``: time (s) of the first recorded step, 2D and 3D.
 
     Returns
     -------
@@ -206,15 +157,17 @@ def run(
         For an unknown case, ``scale`` outside (0, 1], ``steps < 1``, a bad
         time limit or memory cap, or an unknown backend.
     """
-    scale, steps, wanted = _check(scale, cases, steps, time_limit, memory_gb)
-    if row_budget is not None and not (math.isfinite(row_budget) and row_budget > 0):
-        raise CocdError(f"row budget must be > 0 seconds, got {row_budget!r}")
-    scale_3d, _, _ = _check(scale if scale_3d is None else scale_3d, cases, steps, time_limit, None)
-    cap = default_memory_gb() if memory_gb is None else float(memory_gb)
-    done = _previous_rows(Path(out) / "table1.csv") if resume else {}
-    trajectory = {dim: _trajectory_solver(trajectory_solver, dim) for dim in (2, 3)}
+    scale, steps, wanted = _check(cfg.scale, cfg.cases, cfg.steps, cfg.time_limit, cfg.memory_gb)
+    if cfg.row_budget is not None and not (math.isfinite(cfg.row_budget) and cfg.row_budget > 0):
+        raise CocdError(f"row budget must be > 0 seconds, got {cfg.row_budget!r}")
+    scale_3d, _, _ = _check(
+        scale if cfg.scale_3d is None else cfg.scale_3d, cfg.cases, steps, cfg.time_limit, None
+    )
+    cap = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
+    done = _previous_rows(Path(out) / "table1.csv") if cfg.resume else {}
+    trajectory = {dim: _trajectory_solver(cfg.trajectory_solver, dim) for dim in (2, 3)}
     # Both lists first, so that a bad name fails before any work.
-    names = {dim: select_solvers(solvers, dim) for dim in (2, 3) if f"{dim}d" in wanted}
+    names = {dim: select_solvers(cfg.solvers, dim) for dim in (2, 3) if f"{dim}d" in wanted}
     for dim, chosen in names.items():
         if not chosen:
             progress(f"table1: no selected backend solves {dim}D problems; {dim}D skipped")
@@ -232,7 +185,7 @@ def run(
             trajectory,
             t_start_2d,
             t_start_3d,
-            time_limit,
+            cfg.time_limit,
         )
         return table
 
@@ -240,24 +193,23 @@ def run(
         rows.append(row)
         write()
 
-    # (case, label, builder, dt, t_start, eps list, dim, scale, tolerance before t_start,
-    #  detection threshold in mean radii)
-    plan: list[tuple[str, str, Callable[[], Scene], float, float, list[float], int, float,
-                     float | None, float]] = []  # fmt: skip
+    plan: list[_Case] = []
     if names.get(2):
         for n in sorted({max(MIN_GRAINS, round(scale * n)) for n in SEED_N_2D}):
             make: Callable[[], Scene] = partial(column_2d, n)
-            plan.append((CASE_2D, f"table1-column-2d-{n}", make, DT_2D, t_start_2d, EPS_2D, 2,
-                         scale, None, D_SEED_2D))  # fmt: skip
+            plan.append(_Case(CASE_2D, f"table1-column-2d-{n}", make, DT_2D, t_start_2d, EPS_2D,
+                              2, scale, None, D_SEED_2D))  # fmt: skip
     if names.get(3):
         n = max(1, round(scale_3d * SEED_N_3D))
         make = partial(column_collapse, 3, n_grains=n, width=CHANNEL_WIDTH, bed="rough", mu=MU_3D)
-        plan.append((CASE_3D, f"table1-column-3d-{n}", make, DT_3D, t_start_3d, EPS_3D, 3,
-                     scale_3d, PREP_TOL_3D, D_SEED_3D))  # fmt: skip
+        plan.append(_Case(CASE_3D, f"table1-column-3d-{n}", make, DT_3D, t_start_3d, EPS_3D, 3,
+                          scale_3d, PREP_TOL_3D, D_SEED_3D))  # fmt: skip
 
-    def prep_steps(label: str, make: Callable[[], Scene], dt: float, t0: float,
-                   prep_tol: float | None, d_r: float, dim: int) -> int:  # fmt: skip
+    def prep_steps(c: _Case) -> int:
         """Steps of the trajectory to the recorded ones: none when they are cached."""
+        label, make, dt, t0, prep_tol, d_r, dim = (
+            c.label, c.make, c.dt, c.t_start, c.prep_tol, c.d_max_r, c.dim
+        )  # fmt: skip
         scene = make()
         d_max = d_r * float(scene.radii.mean())
         path, _ = cache_path(label, scene, dt, t0, steps, trajectory[dim], TRAJECTORY_TOL,
@@ -268,68 +220,60 @@ def run(
         "table1",
         [
             (
-                int(label.rsplit("-", 1)[1]),
-                prep_steps(label, make, dt, t0, prep_tol, d_r, dim)
-                + steps * len(eps_list) * len(names[dim]),
+                int(c.label.rsplit("-", 1)[1]),
+                prep_steps(c) + steps * len(c.eps_list) * len(names[c.dim]),
             )
-            for _, label, make, dt, t0, eps_list, dim, _, prep_tol, d_r in plan
+            for c in plan
         ],
         out=Path(out),
         progress=progress,
     )
-    for case, label, make, dt, t0, eps_list, dim, case_scale, prep_tol, d_r in plan:
-        _case(
-            case,
-            label,
-            make,
-            dt,
-            t0,
-            eps_list,
-            names=names[dim],
-            trajectory=trajectory[dim],
-            steps=steps,
-            time_limit=time_limit,
-            memory_gb=cap,
-            scale=case_scale,
-            progress=progress,
-            done=done,
-            emit=emit,
-            prep_tol=prep_tol,
-            row_budget=row_budget,
-            d_max_r=d_r,
-        )
+    for c in plan:
+        _run_case(c, cfg, steps, names[c.dim], trajectory[c.dim], cap, progress, done, emit)
     table = write()
     progress(f"table1: done in {time.perf_counter() - start:.0f} s")
     return table
 
 
 # -- one case -----------------------------------------------------------------
-def _case(
-    case: str,
-    label: str,
-    make: Callable[[], Scene],
-    dt: float,
-    t_start: float,
-    eps_list: list[float],
-    *,
+@dataclass(frozen=True)
+class _Case:
+    """One half of Table 1 at one size: its builder, time step, first recorded time,
+    tolerances, scale, tolerance of the steps before ``t_start``, and detection
+    threshold in mean radii."""
+
+    case: str
+    label: str
+    make: Callable[[], Scene]
+    dt: float
+    t_start: float
+    eps_list: list[float]
+    dim: int
+    scale: float
+    prep_tol: float | None
+    d_max_r: float
+
+
+def _run_case(
+    c: _Case,
+    cfg: Settings,
+    steps: int,
     names: list[str],
     trajectory: str,
-    steps: int,
-    time_limit: float,
     memory_gb: float,
-    scale: float,
     progress: Callable[[str], None],
     done: dict[tuple[int, int, float, str, float], dict[str, Any]],
     emit: Callable[[dict[str, Any]], None],
-    prep_tol: float | None = None,
-    row_budget: float | None = None,
-    d_max_r: float = D_SEED_2D,
 ) -> None:
     """Record one case's step problems, then run every backend on them at every eps.
 
-    Contacts are detected with the fixed threshold ``d_max_r`` mean radii. Each
+    Contacts are detected with the fixed threshold ``c.d_max_r`` mean radii. Each
     finished row goes to ``emit``; rows found in ``done`` are emitted as they are.
     """
+    case, label, make, dt, t_start, eps_list, scale, prep_tol, d_max_r = (
+        c.case, c.label, c.make, c.dt, c.t_start, c.eps_list, c.scale, c.prep_tol, c.d_max_r
+    )  # fmt: skip
+    time_limit, row_budget = cfg.time_limit, cfg.row_budget
     scene = make()
     dim, n = scene.dim, scene.n_free
     d_max = d_max_r * float(scene.radii.mean())
@@ -518,7 +462,7 @@ def _summarise(
 
 # -- helpers ------------------------------------------------------------------
 def _check(
-    scale: float, cases: list[str], steps: int, time_limit: float, memory_gb: float | None
+    scale: float, cases: Sequence[str], steps: int, time_limit: float, memory_gb: float | None
 ) -> tuple[float, int, list[str]]:
     """Validated ``scale``, ``steps`` and cases (lower case, each once, in order)."""
     try:

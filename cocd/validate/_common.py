@@ -100,25 +100,23 @@ class CollapseSeries:
 def collapse_series(
     folder: Path,
     params: dict[str, Any],
+    how: RunSettings,
     *,
     label: str,
     dt: float,
     until: float,
     frame_dt: float,
-    solver: str,
-    tol: float,
     profile_times: Sequence[float] = (),
     max_iter: int | None = None,
-    fallback: Sequence[str] = (),
     solver_options: dict[str, Any] | None = None,
     bin_width: float | None = None,
     x_max: float | None = None,
-    fresh: bool = False,
     progress: Callable[[str], Any] = print,
 ) -> CollapseSeries:
     """Run (or resume, or just read) one ``column_collapse`` and measure it.
 
-    ``params`` are :func:`cocd.builders.column_collapse`'s arguments. Frames
+    ``params`` are :func:`cocd.builders.column_collapse`'s arguments; ``how`` the
+    backend, tolerance, fallbacks and whether to start over. Frames
     are saved every ``frame_dt`` seconds (a whole number of steps). Profiles
     are measured at ``profile_times``, each of which must fall on a saved
     frame; bins are ``bin_width`` wide (default: one mean diameter) from the
@@ -134,10 +132,10 @@ def collapse_series(
     run_table: dict[str, Any] = {
         "dt": dt,
         "until": until,
-        "solver": solver,
-        "tol": tol,
+        "solver": how.solver,
+        "tol": how.tol,
         "frame_every": every,
-        "fallback": list(fallback),
+        "fallback": list(how.fallback),
         "solver_options": dict(solver_options or {}),
     }
     if max_iter is not None:
@@ -161,7 +159,12 @@ def collapse_series(
 
     try:
         summary = run(
-            config, folder, resume=not fresh, force=fresh, progress=tick, source=str(folder)
+            config,
+            folder,
+            resume=not how.fresh,
+            force=how.fresh,
+            progress=tick,
+            source=str(folder),
         )
     except SolverError as exc:
         raise CocdError(

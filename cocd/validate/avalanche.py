@@ -26,7 +26,7 @@ the coefficients already measured (``fresh`` redoes them).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -86,25 +86,7 @@ class Settings(RunSettings):
     v_flow: float = option(0.01, "Mean grain speed (m/s) above which the layer flows.")
 
 
-def run(
-    *,
-    mus: Sequence[float],
-    n: int,
-    width_d: float,
-    diameter: float,
-    start_deg: float,
-    step_deg: float,
-    max_deg: float,
-    hold: float,
-    dt: float,
-    v_flow: float,
-    solver: str,
-    tol: float,
-    fallback: Sequence[str],
-    out: Path,
-    fresh: bool,
-    progress: Callable[[str], Any] = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
     """Avalanche and stop angles of a tilted 2D layer against the friction coefficient.
 
     ``n`` discs of mean ``diameter`` in a box ``width_d`` diameters wide;
@@ -115,14 +97,14 @@ def run(
     from cocd.builders import static_box
     from cocd.stepper import Stepper
 
-    mus = sorted(base.positive_list("mus", mus))
-    n = base.positive_int("n", n, 10)
+    mus = sorted(base.positive_list("mus", cfg.mus))
+    n = base.positive_int("n", cfg.n, 10)
     width_d, diameter, step_deg, hold, dt, v_flow = base.positive_list(
         "width_d, diameter, step_deg, hold, dt, v_flow",
-        [width_d, diameter, step_deg, hold, dt, v_flow],
+        [cfg.width_d, cfg.diameter, cfg.step_deg, cfg.hold, cfg.dt, cfg.v_flow],
     )
-    if not (0.0 <= start_deg < max_deg < 90.0):
-        raise CocdError(f"need 0 <= start_deg < max_deg < 90, got {start_deg}, {max_deg}")
+    if not (0.0 <= cfg.start_deg < cfg.max_deg < 90.0):
+        raise CocdError(f"need 0 <= start_deg < max_deg < 90, got {cfg.start_deg}, {cfg.max_deg}")
     out = Path(out)
     cells = out / "runs" / "avalanche"
     cells.mkdir(parents=True, exist_ok=True)
@@ -130,9 +112,9 @@ def run(
     threshold = v_flow * math.sqrt(G * diameter)
     # A guide: up to the angle of repose near atan(mu) + 10 deg, then back down.
     holds = [
-        2 * (math.degrees(math.atan(mu)) + 10.0 - start_deg) / step_deg
+        2 * (math.degrees(math.atan(mu)) + 10.0 - cfg.start_deg) / step_deg
         for mu in mus
-        if fresh or not (cells / f"n{n}_mu{mu:g}.csv").exists()
+        if cfg.fresh or not (cells / f"n{n}_mu{mu:g}.csv").exists()
     ]
     estimate.announce(
         "avalanche", [(n, max(h, 2.0) * hold_steps) for h in holds], out=out, progress=progress
@@ -141,20 +123,20 @@ def run(
     for mu in mus:
         cell = cells / f"n{n}_mu{mu:g}.csv"
         trace_file = cells / f"n{n}_mu{mu:g}_trace.csv"
-        if cell.exists() and trace_file.exists() and not fresh:
+        if cell.exists() and trace_file.exists() and not cfg.fresh:
             rows.append(pd.read_csv(cell).iloc[0].to_dict())
             traces.append(pd.read_csv(trace_file))
             progress(f"avalanche: mu = {mu:g} already measured ({cell})")
             continue
         scene = static_box(2, n_grains=n, diameter=diameter, width=width_d * diameter, mu=mu)
-        stepper = Stepper(scene, dt, solver=solver, tol=tol, fallback=fallback)
+        stepper = Stepper(scene, dt, solver=cfg.solver, tol=cfg.tol, fallback=cfg.fallback)
         trace: list[dict[str, Any]] = []
-        tilt = start_deg
+        tilt = cfg.start_deg
         progress(f"avalanche: mu = {mu:g}, {scene.n_free} discs, tilting from {tilt:g} deg")
         while _hold(stepper, tilt, hold_steps, "up", trace) <= threshold:
             tilt += step_deg
-            if tilt > max_deg:
-                raise CocdError(f"avalanche, mu = {mu:g}: no flow up to {max_deg:g} deg")
+            if tilt > cfg.max_deg:
+                raise CocdError(f"avalanche, mu = {mu:g}: no flow up to {cfg.max_deg:g} deg")
         avalanche_deg = trace[-1]["surface_before_deg"]
         avalanche_tilt = tilt
         progress(f"avalanche: mu = {mu:g} flows at tilt {tilt:g} deg; lowering the tilt")
@@ -195,7 +177,8 @@ def run(
     )
     summary = (
         f"A 2D layer of about {n} discs (d = {diameter * 1e3:g} mm) in a box {width_d:g} d "
-        f"wide, tilted in {step_deg:g} deg steps held {hold:g} s, `{solver}` at tol {tol:g}; "
+        f"wide, tilted in {step_deg:g} deg steps held {hold:g} s, `{cfg.solver}` at tol "
+        f"{cfg.tol:g}; "
         f"flow when the mean speed exceeds {v_flow:g} sqrt(g d). Avalanche and stop angles: "
         f"**{angles}**; hysteresis "
         f"{', '.join(f'{h:.1f}' for h in table.hysteresis_deg)} deg. A DEM shows "

@@ -5,7 +5,7 @@ and the runout of each layer relative to the bed without a layer."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,20 +16,8 @@ import pandas as pd
 from cocd.bench import estimate
 from cocd.bench.study import option
 from cocd.errors import CocdError
-from cocd.validate._common import (
-    RUNOUT_WINDOW,
-    CollapseSeries,
-    RunSettings,
-    base_params,
-    collapse_series,
-    finish,
-    frame_interval,
-    positive_int,
-    positive_list,
-    pyplot,
-    register,
-    save_figure,
-)
+from cocd.validate import _common as base
+from cocd.validate._common import RunSettings, register
 
 
 @dataclass(frozen=True)
@@ -50,22 +38,7 @@ class Settings(RunSettings):
     bed_length: float = option(1.5, "Bed length (m).")
 
 
-def run(
-    *,
-    n: int,
-    slopes: Sequence[float],
-    layers_d: Sequence[float],
-    until: float,
-    dt: float,
-    mu: float,
-    bed_length: float,
-    solver: str,
-    tol: float,
-    fallback: Sequence[str],
-    out: Path,
-    fresh: bool,
-    progress: Callable[[str], Any] = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
     """2D collapses on slopes over erodible layers; front against time.
 
     ``layers_d``: layer thicknesses in mean grain diameters (0: the rough bed
@@ -74,21 +47,23 @@ def run(
     ``runout_ratio`` divides it by that of the same slope without a layer.
     Returns the table written to ``erodible.csv``, one row per (slope, layer).
     """
-    n = positive_int("n", n)
-    slopes = [float(s) for s in slopes]
+    n = base.positive_int("n", cfg.n)
+    slopes = [float(s) for s in cfg.slopes]
     if not slopes or any(not (0.0 <= s < 90.0) for s in slopes):
         raise CocdError(f"slopes must be in [0, 90) degrees, got {slopes!r}")
-    layers = [float(h) for h in layers_d]
+    layers = [float(h) for h in cfg.layers_d]
     if not layers or any(not (math.isfinite(h) and h >= 0.0) for h in layers):
         raise CocdError(f"layer thicknesses must be >= 0 diameters, got {layers!r}")
     layers = sorted(set(layers))
-    (until, dt, bed_length) = positive_list("until, dt, bed_length", [until, dt, bed_length])
+    (until, dt, bed_length) = base.positive_list(
+        "until, dt, bed_length", [cfg.until, cfg.dt, cfg.bed_length]
+    )
     out = Path(out)
     from cocd.builders import column_collapse
 
     d_mean = 2.0 * float(column_collapse(2, n_grains=n, cache=False).radii.mean())
-    frame_dt = frame_interval([0.01], [dt])
-    window = RUNOUT_WINDOW * until
+    frame_dt = base.frame_interval([0.01], [dt])
+    window = base.RUNOUT_WINDOW * until
     estimate.announce(
         "erodible",
         [(n, round(until / dt) * len(slopes) * len(layers))],
@@ -96,29 +71,26 @@ def run(
         progress=progress,
     )
     rows = []
-    fronts: dict[tuple[float, float], CollapseSeries] = {}
+    fronts: dict[tuple[float, float], base.CollapseSeries] = {}
     for slope in slopes:
         for layer in layers:
             label = f"n{n}_slope{slope:g}_layer{layer:g}d"
-            params = base_params(
+            params = base.base_params(
                 n,
-                mu,
+                cfg.mu,
                 slope,
                 erodible_thickness=layer * d_mean,
                 bed_length=bed_length,
             )
             progress(f"erodible: {label} (layer {layer * d_mean * 1e3:.1f} mm) to t = {until:g} s")
-            s = collapse_series(
+            s = base.collapse_series(
                 out / "runs" / "erodible" / label,
                 params,
+                cfg,
                 label=label,
                 dt=dt,
                 until=until,
                 frame_dt=frame_dt,
-                solver=solver,
-                tol=tol,
-                fallback=fallback,
-                fresh=fresh,
                 progress=progress,
             )
             fronts[(slope, layer)] = s
@@ -143,11 +115,11 @@ def run(
                 }
             )
     table = pd.DataFrame(rows)
-    base = table[table.layer_d == layers[0]].set_index("slope_deg").runout_m
-    table["runout_ratio"] = table.runout_m / table.slope_deg.map(base)
+    bare = table[table.layer_d == layers[0]].set_index("slope_deg").runout_m
+    table["runout_ratio"] = table.runout_m / table.slope_deg.map(bare)
     table["runout_over_R0"] = table.runout_m / 0.2
 
-    plt = pyplot()
+    plt = base.pyplot()
     fig, axes = plt.subplots(1, len(slopes), figsize=(5.5 * len(slopes), 4), squeeze=False)
     for ax, slope in zip(axes[0], slopes, strict=True):
         for layer in layers:
@@ -158,7 +130,7 @@ def run(
         ax.grid(True, alpha=0.3)
     axes[0][0].set_ylabel("(r_f - R0) / R0")
     axes[0][0].legend()
-    figures = [save_figure(fig, out / "erodible_front.png")]
+    figures = [base.save_figure(fig, out / "erodible_front.png")]
     parts = []
     for slope in slopes:
         sub = table[table.slope_deg == slope]
@@ -171,9 +143,11 @@ def run(
         note = f" (the front reached the bed's end with {', '.join(cut)})" if cut else ""
         parts.append(f"at {slope:g} deg: {ratios}{note}")
     summary = (
-        f"2D collapses of {n} discs (d = {d_mean * 1e3:.2f} mm, mu = {mu:g}, rough bed "
-        f"{bed_length:g} m long), `{solver}` at tol {tol:g}, dt = {dt:g} s, to t = {until:g} s. "
-        f"Runout at t = {until:g} s (the front averaged over the last {RUNOUT_WINDOW * until:g} s) "
+        f"2D collapses of {n} discs (d = {d_mean * 1e3:.2f} mm, mu = {cfg.mu:g}, rough bed "
+        f"{bed_length:g} m long), `{cfg.solver}` at tol {cfg.tol:g}, dt = {dt:g} s, "
+        f"to t = {until:g} s. "
+        f"Runout at t = {until:g} s (the front averaged over the last "
+        f"{base.RUNOUT_WINDOW * until:g} s) "
         "relative to the same slope without a layer: "
         f"**{'; '.join(parts)}**. The seed (Fig. 9, 2D, d = 1 mm, 44 996 discs) finds the "
         "runout growing with the layer's thickness, more on steeper slopes: the fronts of "
@@ -187,7 +161,7 @@ def run(
         "`runout_ratio`: against the same slope with no layer; `n_layer`: grains in the layer; "
         "`reached_end`: the front came within two diameters of the bed's end (runout cut short)."
     )
-    finish(
+    base.finish(
         out,
         "erodible",
         "Runout on erodible beds (Fig. 9)",

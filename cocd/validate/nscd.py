@@ -4,8 +4,9 @@ profiles at times in units of ``sqrt(H0 / g)`` and their relative difference."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,23 +17,8 @@ import pandas as pd
 from cocd.bench import estimate
 from cocd.bench.study import option
 from cocd.errors import CocdError
-from cocd.validate._common import (
-    COARSE,
-    RunSettings,
-    base_params,
-    coarsen,
-    collapse_series,
-    finish,
-    fmt,
-    frame_interval,
-    positive_int,
-    positive_list,
-    profile_error,
-    profile_figure,
-    pyplot,
-    register,
-    save_figure,
-)
+from cocd.validate import _common as base
+from cocd.validate._common import RunSettings, register
 
 
 @dataclass(frozen=True)
@@ -55,22 +41,7 @@ class Settings(RunSettings):
     )
 
 
-def run(
-    *,
-    n: int,
-    dt: float,
-    times_T: Sequence[float],
-    mu: float,
-    solver: str,
-    tol: float,
-    nscd_tol: float,
-    nscd_max_iter: int,
-    nscd_symmetric: bool,
-    fallback: Sequence[str],
-    out: Path,
-    fresh: bool,
-    progress: Callable[[str], Any] = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
     """The same 2D collapse with a convex backend (COCD) and with ``nscd``.
 
     ``times_T`` are in units of ``T = sqrt(H0 / g)``; each is rounded to a
@@ -82,43 +53,41 @@ def run(
     """
     from cocd.builders import G
 
-    n = positive_int("n", n)
-    (dt,) = positive_list("dt", [dt])
-    times_T = sorted(positive_list("times_T", times_T))
+    n = base.positive_int("n", cfg.n)
+    (dt,) = base.positive_list("dt", [cfg.dt])
+    times_T = sorted(base.positive_list("times_T", cfg.times_T))
     out = Path(out)
-    params = base_params(n, mu)
+    params = base.base_params(n, cfg.mu)
     height = float(params.get("height", 0.14))
     period = math.sqrt(height / G)
-    frame_dt = frame_interval([0.01], [dt])
+    frame_dt = base.frame_interval([0.01], [dt])
     times = sorted({round(t * period / frame_dt) * frame_dt for t in times_T})
     if times[0] <= 0.0:
         raise CocdError(f"times_T {times_T} round to t = 0 s: ask for later times")
     estimate.announce("nscd", [(n, 2 * round(max(times) / dt))], out=out, progress=progress)
     runs = []
-    for backend, backend_tol, extra in (
-        (solver, tol, {"fallback": fallback}),
-        (
-            "nscd",
-            nscd_tol,
-            {"max_iter": nscd_max_iter, "solver_options": {"symmetric": nscd_symmetric}},
-        ),
+    nscd_options: dict[str, Any] = {
+        "max_iter": cfg.nscd_max_iter,
+        "solver_options": {"symmetric": cfg.nscd_symmetric},
+    }
+    for how, extra in (
+        (cfg, dict[str, Any]()),
+        (dataclasses.replace(cfg, solver="nscd", tol=cfg.nscd_tol, fallback=()), nscd_options),
     ):
-        label = f"n{n}_{backend.replace(':', '-')}"
-        if backend == "nscd" and nscd_symmetric:
+        label = f"n{n}_{how.solver.replace(':', '-')}"
+        if how.solver == "nscd" and cfg.nscd_symmetric:
             label += "-symmetric"
-        progress(f"nscd: {label} (tol {backend_tol:g}) to t = {max(times):g} s")
+        progress(f"nscd: {label} (tol {how.tol:g}) to t = {max(times):g} s")
         runs.append(
-            collapse_series(
+            base.collapse_series(
                 out / "runs" / "nscd" / label,
                 params,
+                how,
                 label=label,
                 dt=dt,
                 until=max(times),
                 frame_dt=frame_dt,
-                solver=backend,
-                tol=backend_tol,
                 profile_times=times,
-                fresh=fresh,
                 progress=progress,
                 **extra,
             )
@@ -130,9 +99,12 @@ def run(
             {
                 "t": t,
                 "t_over_T": t / period,
-                "profile_difference": profile_error(nscd_run.profiles[k], cocd_run.profiles[k]),
-                "profile_difference_4d": profile_error(
-                    coarsen(nscd_run.profiles[k], COARSE), coarsen(cocd_run.profiles[k], COARSE)
+                "profile_difference": base.profile_error(
+                    nscd_run.profiles[k], cocd_run.profiles[k]
+                ),
+                "profile_difference_4d": base.profile_error(
+                    base.coarsen(nscd_run.profiles[k], base.COARSE),
+                    base.coarsen(cocd_run.profiles[k], base.COARSE),
                 ),
                 "front_cocd_m": float(np.interp(t, cocd_run.times, cocd_run.front)),
                 "front_nscd_m": float(np.interp(t, nscd_run.times, nscd_run.front)),
@@ -146,13 +118,13 @@ def run(
             (s.stats.ccp_residual if name == "cocd" else s.stats.coulomb_residual).max()
         )
     figures = [
-        profile_figure(
+        base.profile_figure(
             out / "nscd_profiles.png",
             runs,
-            [f"COCD ({solver}, tol {tol:g})", f"NSCD (nscd, tol {nscd_tol:g})"],
+            [f"COCD ({cfg.solver}, tol {cfg.tol:g})", f"NSCD (nscd, tol {cfg.nscd_tol:g})"],
         )
     ]
-    plt = pyplot()
+    plt = base.pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     for s, name in ((cocd_run, "COCD"), (nscd_run, "NSCD")):
         ax.plot(s.times / period, (s.front - s.front[0]) / 0.2, label=name)
@@ -160,19 +132,19 @@ def run(
     ax.set_ylabel("(r_f - R0) / R0")
     ax.grid(True, alpha=0.3)
     ax.legend()
-    figures.append(save_figure(fig, out / "nscd_front.png"))
+    figures.append(base.save_figure(fig, out / "nscd_front.png"))
     diffs = ", ".join(
-        f"{fmt(d)} ({fmt(d4)} on 4 d) at t = {tt:.2g} T"
+        f"{base.fmt(d)} ({base.fmt(d4)} on 4 d) at t = {tt:.2g} T"
         for tt, d, d4 in zip(
             table.t_over_T, table.profile_difference, table.profile_difference_4d, strict=True
         )
     )
     final = table.iloc[-1]
     summary = (
-        f"2D collapse of {cocd_run.n_grains} discs (mu = {mu:g}, rough horizontal bed, "
-        f"dt = {dt:g} s, T = sqrt(H0/g) = {period:.4g} s), COCD with `{solver}` at tol "
-        f"{tol:g} against `nscd` (exact Coulomb law, "
-        f"{'symmetric ' if nscd_symmetric else ''}Gauss-Seidel) at tol {nscd_tol:g}. "
+        f"2D collapse of {cocd_run.n_grains} discs (mu = {cfg.mu:g}, rough horizontal bed, "
+        f"dt = {dt:g} s, T = sqrt(H0/g) = {period:.4g} s), COCD with `{cfg.solver}` at tol "
+        f"{cfg.tol:g} against `nscd` (exact Coulomb law, "
+        f"{'symmetric ' if cfg.nscd_symmetric else ''}Gauss-Seidel) at tol {cfg.nscd_tol:g}. "
         f"Relative profile difference: **{diffs}**; fronts at t = {final.t_over_T:.2g} T: "
         f"{final.front_cocd_m:.4f} m (COCD) and {final.front_nscd_m:.4f} m (NSCD). "
         "The seed (Fig. 4: 7740 discs in COCD against 6036 in a published NSCD run) "
@@ -184,7 +156,7 @@ def run(
         "each scheme's own (`ccp_residual` for COCD, `coulomb_residual` for NSCD); "
         "`compute_s_*`: detection, set-up and solve time of each whole run."
     )
-    finish(out, "nscd", "COCD against NSCD (Fig. 4)", table, intro, summary, figures, progress)
+    base.finish(out, "nscd", "COCD against NSCD (Fig. 4)", table, intro, summary, figures, progress)
     return table
 
 

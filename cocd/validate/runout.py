@@ -22,7 +22,7 @@ Every simulation is a resumable run file (:func:`cocd.bench.validate.collapse_se
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,22 +59,7 @@ class Settings(RunSettings):
     min_time: float = option(1.0, "Shortest run (s), whatever the aspect ratio.")
 
 
-def run(
-    *,
-    aspects: Sequence[float],
-    area: float,
-    diameter: float,
-    mu: float,
-    dt: float,
-    rest_T: float,
-    min_time: float,
-    solver: str,
-    tol: float,
-    fallback: Sequence[str],
-    out: Path,
-    fresh: bool,
-    progress: Callable[[str], Any] = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
     """Collapse 2D columns of aspect ratios ``aspects`` and fit the runout and height laws.
 
     Each column has cross-section ``area`` (m^2), ``L0 = sqrt(area / a)``,
@@ -82,11 +67,12 @@ def run(
     enough for the runout, and runs for ``max(min_time, rest_T sqrt(H0 / g))``
     seconds. Returns the table written to ``runout_scaling.csv``, one row per ``a``.
     """
-    aspects = sorted(base.positive_list("aspects", aspects))
+    aspects = sorted(base.positive_list("aspects", cfg.aspects))
     if len(aspects) < 4:
         raise CocdError("scaling needs at least 4 aspect ratios (two per regime)")
     area, diameter, dt, rest_T, min_time = base.positive_list(
-        "area, diameter, dt, rest_T, min_time", [area, diameter, dt, rest_T, min_time]
+        "area, diameter, dt, rest_T, min_time",
+        [cfg.area, cfg.diameter, cfg.dt, cfg.rest_T, cfg.min_time],
     )
     out = Path(out)
     frame_dt = base.frame_interval([0.01], [dt])
@@ -112,7 +98,7 @@ def run(
         # Room for the runout: the 2D laws give (Lf - L0)/L0 of about 2 a for small a,
         # about 3 a^(2/3) beyond; twice that, and at least 4 L0.
         bed = L0 * (1.0 + max(4.0, 2.0 * max(2.0 * a, 3.0 * a ** (2.0 / 3.0))))
-        label = f"a{a:g}_d{diameter * 1e3:g}mm_mu{mu:g}"
+        label = f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}"
         params = {
             "dim": 2,
             "diameter": diameter,
@@ -120,21 +106,18 @@ def run(
             "height": H0,
             "bed": "rough",
             "bed_length": bed,
-            "mu": mu,
+            "mu": cfg.mu,
         }
         progress(f"scaling: {label} (L0 = {L0:.3f} m, H0 = {H0:.3f} m) to t = {until:g} s")
         s = base.collapse_series(
             out / "runs" / "scaling" / label,
             params,
+            cfg,
             label=label,
             dt=dt,
             until=until,
             frame_dt=frame_dt,
-            solver=solver,
-            tol=tol,
-            fallback=fallback,
             profile_times=[until],
-            fresh=fresh,
             progress=progress,
         )
         series.append(s)
@@ -180,9 +163,9 @@ def run(
         "`k_all`: one law through every point.",
     )
     summary = (
-        f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, mu = {mu:g}, "
+        f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, mu = {cfg.mu:g}, "
         f"{table.n_grains.min()} to {table.n_grains.max()} discs), a = "
-        f"{', '.join(f'{a:g}' for a in aspects)}, `{solver}` at tol {tol:g}. "
+        f"{', '.join(f'{a:g}' for a in aspects)}, `{cfg.solver}` at tol {cfg.tol:g}. "
         f"Runout (Lf - L0)/L0 ~ **a^{fit_r['k_low']:.2f} below a = {fit_r['a_c']:.2g}, "
         f"a^{fit_r['k_high']:.2f} above**; H0/Hf ~ **a^{fit_h['k_low']:.2f} below a = "
         f"{fit_h['a_c']:.2g}, a^{fit_h['k_high']:.2f} above** (one law: a^{fit_h['k_all']:.2f}). "

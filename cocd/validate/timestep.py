@@ -4,7 +4,7 @@ against the smallest step, ``||h_dt - h_ref|| / ||h_ref||``."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,23 +15,8 @@ import pandas as pd
 from cocd.bench import estimate
 from cocd.bench.study import option
 from cocd.errors import CocdError
-from cocd.validate._common import (
-    COARSE,
-    RunSettings,
-    base_params,
-    coarsen,
-    collapse_series,
-    finish,
-    fmt,
-    frame_interval,
-    positive_int,
-    positive_list,
-    profile_error,
-    profile_figure,
-    pyplot,
-    register,
-    save_figure,
-)
+from cocd.validate import _common as base
+from cocd.validate._common import RunSettings, register
 
 
 @dataclass(frozen=True)
@@ -45,52 +30,37 @@ class Settings(RunSettings):
     tol: float = option(1e-8, "Tolerance of the convex backend.")
 
 
-def run(
-    *,
-    n: int,
-    dts: Sequence[float],
-    times: Sequence[float],
-    mu: float,
-    solver: str,
-    tol: float,
-    fallback: Sequence[str],
-    out: Path,
-    fresh: bool,
-    progress: Callable[[str], Any] = print,
-) -> pd.DataFrame:
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
     """Profiles of one 2D collapse at several time steps; error against the smallest.
 
     Returns the table written to ``timestep.csv``: one row per (dt, t) with
     the profile error against the smallest ``dt`` and the front position.
     """
-    n = positive_int("n", n)
-    dts = sorted(positive_list("dts", dts), reverse=True)
-    times = sorted(positive_list("times", times))
+    n = base.positive_int("n", cfg.n)
+    dts = sorted(base.positive_list("dts", cfg.dts), reverse=True)
+    times = sorted(base.positive_list("times", cfg.times))
     if len(dts) < 2:
         raise CocdError("timestep needs at least two time steps")
     out = Path(out)
-    params = base_params(n, mu)
-    frame_dt = frame_interval(times, dts)
+    params = base.base_params(n, cfg.mu)
+    frame_dt = base.frame_interval(times, dts)
     estimate.announce(
         "timestep", [(n, round(max(times) / dt)) for dt in dts], out=out, progress=progress
     )
     series = []
     for dt in dts:
         label = f"n{n}_dt{dt:.0e}"
-        progress(f"timestep: {label} ({solver}, tol {tol:g}) to t = {max(times):g} s")
+        progress(f"timestep: {label} ({cfg.solver}, tol {cfg.tol:g}) to t = {max(times):g} s")
         series.append(
-            collapse_series(
+            base.collapse_series(
                 out / "runs" / "timestep" / label,
                 params,
+                cfg,
                 label=label,
                 dt=dt,
                 until=max(times),
                 frame_dt=frame_dt,
-                solver=solver,
-                tol=tol,
-                fallback=fallback,
                 profile_times=times,
-                fresh=fresh,
                 progress=progress,
             )
         )
@@ -102,9 +72,10 @@ def run(
                 {
                     "dt": dt,
                     "t": t,
-                    "profile_error": profile_error(s.profiles[k], ref.profiles[k]),
-                    "profile_error_4d": profile_error(
-                        coarsen(s.profiles[k], COARSE), coarsen(ref.profiles[k], COARSE)
+                    "profile_error": base.profile_error(s.profiles[k], ref.profiles[k]),
+                    "profile_error_4d": base.profile_error(
+                        base.coarsen(s.profiles[k], base.COARSE),
+                        base.coarsen(ref.profiles[k], base.COARSE),
                     ),
                     "front_m": float(np.interp(t, s.times, s.front)),
                     "front_ref_m": float(np.interp(t, ref.times, ref.front)),
@@ -116,9 +87,9 @@ def run(
             )
     table = pd.DataFrame(rows)
     figures = [
-        profile_figure(out / "timestep_profiles.png", series, [f"dt = {d:g} s" for d in dts])
+        base.profile_figure(out / "timestep_profiles.png", series, [f"dt = {d:g} s" for d in dts])
     ]
-    plt = pyplot()
+    plt = base.pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for t in times:
         sub = table[(table.t == t) & (table.dt > dts[-1])]
@@ -127,16 +98,16 @@ def run(
     ax.set_ylabel(f"profile error against dt = {dts[-1]:g} s")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    figures.append(save_figure(fig, out / "timestep_error.png"))
+    figures.append(base.save_figure(fig, out / "timestep_error.png"))
 
     coarse = table[table.dt == dts[0]]
     errors = ", ".join(
-        f"{fmt(e)} ({fmt(e4)} on 4 d) at t = {t:g} s"
+        f"{base.fmt(e)} ({base.fmt(e4)} on 4 d) at t = {t:g} s"
         for t, e, e4 in zip(coarse.t, coarse.profile_error, coarse.profile_error_4d, strict=True)
     )
     summary = (
-        f"2D collapse of {ref.n_grains} discs (d = {ref.d_mean * 1e3:.2f} mm, mu = {mu:g}, "
-        f"rough horizontal bed), `{solver}` at tol {tol:g}, dt = "
+        f"2D collapse of {ref.n_grains} discs (d = {ref.d_mean * 1e3:.2f} mm, mu = {cfg.mu:g}, "
+        f"rough horizontal bed), `{cfg.solver}` at tol {cfg.tol:g}, dt = "
         f"{', '.join(f'{d:g}' for d in dts)} s. Profile error of dt = {dts[0]:g} s against "
         f"dt = {dts[-1]:g} s: **{errors}**. The seed (Fig. 2, 2D) finds the profiles of "
         "dt = 1e-3 s 'very close, with only slight differences' to those of 5e-5 s, "
@@ -150,7 +121,7 @@ def run(
         "`front_m`: the flow's front from the back wall (surface_front); `compute_s`: detection, "
         "set-up and solve time of the whole run."
     )
-    finish(
+    base.finish(
         out, "timestep", "Time step convergence (Fig. 2)", table, intro, summary, figures, progress
     )
     return table
