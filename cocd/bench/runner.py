@@ -79,6 +79,18 @@ def u_error(problem: ConicProblem, u: FloatArray, ref_u: FloatArray) -> float:
     return float(np.linalg.norm(np.asarray(u) - ref_u) / scale)
 
 
+def _empty_row(solver: str) -> dict[str, Any]:
+    """A row of :data:`ROW_COLUMNS` for ``solver`` before its answer (an unknown name is an
+    ``error`` row)."""
+    row: dict[str, Any] = {c: np.nan for c in ROW_COLUMNS}
+    row.update(solver=solver, polished=False, note="")
+    try:
+        row["formulation"] = solvers.get(solver).formulation
+    except Exception as exc:
+        row.update(status="error", note=f"{type(exc).__name__}: {exc}")
+    return row
+
+
 def solve_row(
     problem: ConicProblem,
     solver: str,
@@ -95,12 +107,8 @@ def solve_row(
     Exceptions raised by the backend become ``status = "error"`` rows. With
     ``keep_solution`` the row also holds ``u`` and ``p`` (not table columns).
     """
-    row: dict[str, Any] = {c: np.nan for c in ROW_COLUMNS}
-    row.update(solver=solver, polished=False, note="")
-    try:
-        row["formulation"] = solvers.get(solver).formulation
-    except Exception as exc:
-        row.update(status="error", note=f"{type(exc).__name__}: {exc}")
+    row = _empty_row(solver)
+    if row["status"] == "error":
         return row
     start = time.perf_counter()
     try:
@@ -232,44 +240,23 @@ class Worker:
         return self._paths[key]
 
     def solve_row(
-        self,
-        problem: ConicProblem,
-        solver: str,
-        tol: float,
-        *,
-        warm_start: FloatArray | None = None,
-        time_limit: float | None = None,
-        max_iter: int | None = None,
-        ref_u: FloatArray | None = None,
-        keep_solution: bool = False,
+        self, problem: ConicProblem, solver: str, tol: float, **options: Any
     ) -> dict[str, Any]:
-        """As :func:`solve_row`, in the child process; never raises for a backend failure.
+        """As :func:`solve_row` (``options``: its keywords), in the child process; never
+        raises for a backend failure.
 
         Each problem is written to disk once per worker (keyed by identity) and
         kept alive by the worker until :meth:`close`.
         """
-        kwargs = dict(
-            solver=solver,
-            tol=tol,
-            warm_start=warm_start,
-            time_limit=time_limit,
-            max_iter=max_iter,
-            ref_u=ref_u,
-            keep_solution=keep_solution,
-        )
+        time_limit = options.get("time_limit")
         limit = None if time_limit is None else 1.5 * time_limit + self.grace
-        outcome = self._child.run(_solve_job, self._path(problem), kwargs, limit=limit)
+        job = dict(solver=solver, tol=tol, **options)
+        outcome = self._child.run(_solve_job, self._path(problem), job, limit=limit)
+        row = _empty_row(solver)
         if outcome.status == "done":
-            answer = dict(outcome.result)
+            row.update(outcome.result)
         else:
-            answer = {"status": outcome.status, "note": outcome.note, "wall_s": outcome.elapsed}
-        row: dict[str, Any] = {c: np.nan for c in ROW_COLUMNS}
-        row.update(solver=solver, polished=False, note="")
-        try:
-            row["formulation"] = solvers.get(solver).formulation
-        except Exception:
-            pass
-        row.update(answer)
+            row.update(status=outcome.status, note=outcome.note, wall_s=outcome.elapsed)
         return row
 
 

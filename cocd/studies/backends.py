@@ -26,7 +26,7 @@ import pandas as pd
 
 import solvers as backends
 from cocd.bench import report, solver_names, study
-from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
+from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
 from cocd.bench.study import option
 from cocd.builders import box_3d, column_2d
@@ -35,25 +35,16 @@ from cocd.problem import ConicProblem
 
 __all__ = ["COLUMNS", "STUDY", "Settings", "one_step", "run", "timed_row"]
 
+#: The table's columns: the case, then the harness's row (less the dynamics residual,
+#: zero on a step problem), then the native solves made.
 COLUMNS = [
     "problem",
     "dim",
     "N",
     "Nc",
-    "solver",
     "tol",
-    "formulation",
-    "status",
-    "iterations",
-    "setup_s",
-    "solve_s",
-    "wall_s",
-    "ccp_residual",
-    "coulomb_residual",
-    "u_error",
+    *(c for c in ROW_COLUMNS if c != "dynamics_residual"),
     "solves",
-    "polished",
-    "note",
 ]
 #: Seconds (of simulated time, dt = 1e-3 s) before the recorded step of each case.
 T_START = {2: 0.030, 3: 0.020}
