@@ -92,3 +92,10 @@ def jittered_lattice(rng, shape, radius, sizes, spacing, jitter):
     radii = radius * rng.uniform(*sizes, n)
     x = spacing * radius * idx + radius * rng.uniform(-jitter, jitter, (n, dim))
     return idx, radii, x
+
+
+def run_study(study, out, **settings):
+    """Run a registered study into ``out``, its progress lines kept: ``(out, table, lines)``."""
+    lines: list[str] = []
+    table = study(out=out, progress=lines.append, **settings)
+    return out, table, lines

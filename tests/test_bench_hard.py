@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import run_study
 from typer.testing import CliRunner
 
 from cocd.builders import HARD_CASES
@@ -37,17 +38,8 @@ STATED = [
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     out = tmp_path_factory.mktemp("hard")
-    lines: list[str] = []
-    table = hard.STUDY(
-        solvers="clarabel,pgs",
-        cases=CASES,
-        steps=2,
-        tol=TOL,
-        time_limit=30.0,
-        out=out,
-        progress=lines.append,
-    )
-    return out, table, lines
+    settings = dict(solvers="clarabel,pgs", cases=CASES, steps=2, tol=TOL, time_limit=30.0)
+    return run_study(hard.STUDY, out, **settings)
 
 
 def test_files_and_columns(result):

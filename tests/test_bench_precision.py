@@ -9,6 +9,7 @@ from functools import partial
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import run_study
 from typer.testing import CliRunner
 
 from cocd.bench.metrics import (
@@ -132,17 +133,8 @@ def cache(tmp_path_factory):
 @pytest.fixture(scope="module")
 def tiny_run(cache, tmp_path_factory):
     out = tmp_path_factory.mktemp("precision")
-    lines: list[str] = []
-    table = precision.STUDY(
-        solvers="clarabel,scs-dual",
-        tols=[1e-8, 1e-3],
-        n2d=30,
-        n3d=20,
-        time_limit=60.0,
-        out=out,
-        progress=lines.append,
-    )
-    return out, table, lines
+    settings = dict(solvers="clarabel,scs-dual", tols=[1e-8, 1e-3], n2d=30, n3d=20)
+    return run_study(precision.STUDY, out, time_limit=60.0, **settings)
 
 
 def test_run_writes_every_file_with_the_stated_columns(tiny_run):

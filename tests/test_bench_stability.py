@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import run_study
 from typer.testing import CliRunner
 
 import solvers
@@ -33,15 +34,8 @@ def cache(tmp_path_factory):
 def result(tmp_path_factory):
     """clarabel at 1e-8, apgd loose (1e-1) and tight (1e-6), in process."""
     out = tmp_path_factory.mktemp("stability")
-    lines: list[str] = []
-    table = stability.STUDY(
-        solvers="clarabel,apgd",
-        eps_list=[1e-1, 1e-6, 1e-8],
-        out=out,
-        progress=lines.append,
-        isolate=False,
-        **BASE,
-    )
+    settings = dict(solvers="clarabel,apgd", eps_list=[1e-1, 1e-6, 1e-8], **BASE)
+    out, table, lines = run_study(stability.STUDY, out, isolate=False, **settings)
     return table, out, lines
 
 
