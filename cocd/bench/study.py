@@ -294,9 +294,10 @@ def add_commands(app: typer.Typer, group: Group) -> None:
     An alias ``"name"`` is an old name in the study's own group; ``"group:name"``
     one in another group (it writes where that group writes by default).
     """
-    for study in studies():
+    for study in sorted(studies(), key=lambda s: s.name):
         if study.group == group:
-            app.command(study.name, help=study.summary())(command(study))
+            summary = study.summary()
+            app.command(study.name, help=summary, short_help=summary)(command(study))
         for alias in study.aliases:
             where, _, name = alias.rpartition(":")
             if (where or study.group) != group:
