@@ -53,8 +53,9 @@ def short(exc: BaseException, limit: int = 300) -> str:
     return " ".join(str(exc).split())[:limit]
 
 
-def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
-    """Child process: run jobs until told to stop."""
+def _serve(jobs: Any, answers: Any, memory_gb: float | None, started: Any = None) -> None:
+    """Child process: run jobs until told to stop; ``started`` is set as each job is taken
+    (at once, unlike a message, even if the job then holds the interpreter in native code)."""
     if memory_gb is not None and math.isfinite(memory_gb):
         cap = int(memory_gb * 2**30)
         resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
@@ -67,6 +68,8 @@ def _serve(jobs: Any, answers: Any, memory_gb: float | None) -> None:
         if item is None:
             return
         job, args = item
+        if started is not None:
+            started.set()
         answers.put(("start", None))
         try:
             answers.put(("done", job(emit, *args)))
@@ -92,6 +95,7 @@ class Worker:
         self._proc: Any = None
         self._jobs: Any = None
         self._answers: Any = None
+        self._started = self._ctx.Event()
 
     def __enter__(self) -> Worker:
         return self
@@ -137,9 +141,12 @@ class Worker:
         if self._proc is None or not self._proc.is_alive():
             self._jobs, self._answers = self._ctx.Queue(), self._ctx.Queue()
             self._proc = self._ctx.Process(
-                target=_serve, args=(self._jobs, self._answers, self.memory_gb), daemon=True
+                target=_serve,
+                args=(self._jobs, self._answers, self.memory_gb, self._started),
+                daemon=True,
             )
             self._proc.start()
+        self._started.clear()
         self._jobs.put((job, args))
         out = Outcome(status=ERROR)
         start = last = time.perf_counter()
@@ -150,12 +157,15 @@ class Worker:
         try:
             while True:
                 now = time.perf_counter()
+                if not started and self._started.is_set():
+                    start = last = now
+                    started = True
                 if started:
                     wait = min(
                         1.0, limit - (now - start), silence - (now - last), budget - (now - start)
                     )
                 else:
-                    wait = min(1.0, STARTUP_S - (now - start))
+                    wait = min(0.05, STARTUP_S - (now - start))
                 try:
                     kind, body = self._answers.get(timeout=max(0.01, wait))
                 except queue_mod.Empty:
@@ -177,8 +187,9 @@ class Worker:
                     self._kill()
                     return out
                 if kind == "start":
-                    start = last = time.perf_counter()
-                    started = True
+                    if not started:
+                        start = last = time.perf_counter()
+                        started = True
                     continue
                 last = time.perf_counter()
                 if kind == "event":
