@@ -112,6 +112,8 @@ class Study:
         One line for ``--help``; the run function's first docstring line by default.
     aliases : tuple of str
         Older names of the command, kept hidden and marked deprecated.
+    hidden : bool
+        An old command kept for its users: left out of ``--help``, marked deprecated.
     """
 
     name: str
@@ -121,6 +123,7 @@ class Study:
     outputs: tuple[str, ...] = ()
     help: str = ""
     aliases: tuple[str, ...] = ()
+    hidden: bool = False
 
     def summary(self) -> str:
         if self.help:
@@ -289,22 +292,20 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
 
 
 def add_commands(app: typer.Typer, group: Group) -> None:
-    """Add a command to ``app`` for each study of ``group``, and the hidden old names.
-
-    An alias ``"name"`` is an old name in the study's own group; ``"group:name"``
-    one in another group (it writes where that group writes by default).
-    """
-    for study in sorted(studies(), key=lambda s: s.name):
-        if study.group == group:
-            summary = study.summary()
-            app.command(study.name, help=summary, short_help=summary)(command(study))
+    """Add a command to ``app`` for each study of ``group``, and the hidden old names."""
+    for study in sorted(studies(group), key=lambda s: s.name):
+        summary = study.summary()
+        app.command(
+            study.name,
+            help=summary,
+            short_help=summary,
+            hidden=study.hidden,
+            deprecated=study.hidden,
+        )(command(study))
         for alias in study.aliases:
-            where, _, name = alias.rpartition(":")
-            if (where or study.group) != group:
-                continue
             app.command(
-                name,
-                help=f"Old name of `cocd {study.group} {study.name}`.",
+                alias,
+                help=f"Old name of `cocd {group} {study.name}`.",
                 hidden=True,
                 deprecated=True,
-            )(command(study, name=name, out=DEFAULT_OUT[group]))
+            )(command(study, name=alias))

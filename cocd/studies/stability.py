@@ -460,6 +460,33 @@ STUDY = study.register(
         help="The seed's Fig. 3: does a box at rest stay at rest, for each solver and eps, "
         "and the largest eps that keeps it at rest.",
         outputs=("stability_summary", "stability_threshold"),
-        aliases=("validate:stability",),
+    )
+)
+
+
+@dataclass(frozen=True)
+class SeedSettings(Settings):
+    """The defaults ``cocd validate stability`` had: a smaller box, the backends of the
+    validation, five tolerances, a time limit and a budget per run."""
+
+    solvers: str | None = study.solvers("ipm,clarabel,scs,apgd,pgs,nscd")
+    eps_list: tuple[float, ...] = option(
+        (1e-1, 1e-2, 1e-3, 1e-4, 1e-6), "Comma-separated tolerances.", kind="floats"
+    )
+    n: int = option(300, "Grains in the box.")
+    time_limit: float = study.time_limit(30.0)
+    run_budget: float | None = option(60.0, "Wall seconds per (solver, eps) run.")
+
+
+#: The old command ``cocd validate stability``, hidden: the same study with its defaults.
+SEED_STUDY = study.register(
+    study.Study(
+        "stability",
+        "validate",
+        SeedSettings,
+        run,
+        outputs=STUDY.outputs,
+        help="Old name of `cocd bench stability`, with the defaults it had.",
+        hidden=True,
     )
 )
