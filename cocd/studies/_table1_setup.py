@@ -63,7 +63,7 @@ PREP_TOL_3D = 1e-6
 #: which the columns have the seed's potential contacts per grain at the start of
 #: the recorded steps (4.49 per disc for 8308 discs, 6.75 per sphere), measured on
 #: the 8308-disc column and the 1229-sphere one (1 % of the seed's)
-#: (``python benchmarks/seed_contacts.py``, ``results/seed_contacts.md``).
+#: (``cocd bench seed-contacts``, ``results/seed_contacts.md``).
 D_SEED_2D = 1.63
 D_SEED_3D = 0.98
 

@@ -16,7 +16,7 @@ The seed counts Nc potential contacts (pairs closer than its threshold D,
 section 3.3) but does not give D: both cases detect contacts with the fixed
 threshold that gives the seed's Nc per grain at the start of the recorded
 steps (:data:`D_SEED_2D`, :data:`D_SEED_3D`, in mean radii, found by
-``python benchmarks/seed_contacts.py``), so that the problems are the size of
+``cocd bench seed-contacts``), so that the problems are the size of
 the seed's. Every step of the trajectory is checked for overlaps at its end
 (:class:`~cocd.stepper.Stepper`).
 
