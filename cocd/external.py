@@ -38,8 +38,8 @@ RECORD_KEYS = [
     "solver",
     "status",
     "iterations",
-    "time_s",
     "setup_s",
+    "solve_s",
     "ccp_residual",
     "coulomb_residual",
     "natural_map_error",
@@ -102,7 +102,7 @@ def solve_external(
     """Solve ``problem`` with ``solver``; return its record and the answer in the file's terms.
 
     ``setup_s`` is cocd's conversion (the factorisation of ``M`` or ``W``) plus
-    the backend's own set-up; ``time_s`` the backend's solve time. An unknown
+    the backend's own set-up; ``solve_s`` the backend's solve time. An unknown
     solver, a problem the backend does not take (dimension, cones) or a local
     problem whose ``W`` is not symmetric raise a :class:`~cocd.errors.CocdError`.
     """
@@ -120,8 +120,8 @@ def solve_external(
         "solver": solver,
         "status": sol.status.value,
         "iterations": int(sol.iterations),
-        "time_s": float(sol.solve_time),
         "setup_s": float(convert + sol.setup_time),
+        "solve_s": float(sol.solve_time),
         "ccp_residual": float("nan"),
         "coulomb_residual": float("nan"),
         "natural_map_error": float("nan"),

@@ -26,7 +26,7 @@ STATED = [
     "status",
     "steps_done",
     "iterations",
-    "time_per_step_s",
+    "wall_s",
     "ccp_residual",
     "coulomb_residual",
     "dynamics_residual",

@@ -44,7 +44,7 @@ def test_scaling_tiny_run(tmp_path, cache, monkeypatch):
     assert len(table) == 8
     assert set(table.solver) == {"ipm", "clarabel"}
     assert set(table.packing) == {"column", "jammed_box"}
-    assert (table.warm == "no").all()
+    assert (table.start == "cold").all()
     assert (table.steps_ok == "2/2").all()
     assert (table.ccp_residual[table.dim == 2] <= 1e-8).all()
     assert (table.ccp_residual[table.dim == 3] <= 1e-5).all()
@@ -79,9 +79,9 @@ def test_scaling_real_packings_have_granular_contact_counts(tmp_path, cache):
     assert (table.steps_ok == "1/1").all()
     assert (table.ccp_residual <= 1e-5).all()
     by = table.set_index(["packing", "solver"])
-    assert by.loc[("column", "apgd"), "warm"] == "yes"
-    assert by.loc[("column", "ipm"), "warm"] == "no"
-    assert by.loc[("box", "apgd"), "warm"] == "no"
+    assert by.loc[("column", "apgd"), "start"] == "warm"
+    assert by.loc[("column", "ipm"), "start"] == "cold"
+    assert by.loc[("box", "apgd"), "start"] == "cold"
     lattice = by.loc[("jammed_box", "apgd"), "Nc_per_grain"]
     assert lattice < 3.6
     assert by.loc[("box", "apgd"), "Nc_per_grain"] > 5.0
@@ -112,7 +112,7 @@ def test_scaling_skips_larger_sizes_after_a_time_limit(tmp_path):
     first, second = table.iloc[0], table.iloc[1]
     assert first.steps_ok == "0/1" and "time_limit" in first.note
     assert second.steps_ok == "0/1" and second.note == "skipped: time limit at N = 8"
-    assert np.isnan(second.time_per_step_s)
+    assert np.isnan(second.wall_s)
 
 
 def test_scaling_cli_rejects_bad_sizes(tmp_path):
@@ -129,11 +129,11 @@ def test_scaling_takes_2d_rows_from_table1(tmp_path, cache):
             Nc=3.0 * n,
             Nc_per_grain=3.0,
             solver="ipm",
-            warm="no",
-            eps=1e-8,
+            start="cold",
+            tol=1e-8,
             steps_ok="10/10",
             iterations=20.0,
-            time_per_step_s=1e-4 * n**1.2,
+            wall_s=1e-4 * n**1.2,
             ccp_residual=1e-9,
             note="",
         )
@@ -146,11 +146,11 @@ def test_scaling_takes_2d_rows_from_table1(tmp_path, cache):
             Nc=37331.0,
             Nc_per_grain=4.49,
             solver="mosek",
-            warm="no",
-            eps=1e-8,
+            start="cold",
+            tol=1e-8,
             steps_ok="",
             iterations=47.0,
-            time_per_step_s=8.85,
+            wall_s=8.85,
             ccp_residual=None,
             note="",
         )
@@ -190,5 +190,5 @@ def test_scaling_resume_keeps_the_rows_it_has(tmp_path):
     again = scaling.STUDY(n3d=[8, 27], resume=True, **kw)
     assert list(again.N) == [8, 27] and (again.steps_ok == "1/1").all()
     kept = again[again.N == 8].iloc[0]
-    assert kept.time_per_step_s == first.time_per_step_s.iloc[0]
+    assert kept.wall_s == first.wall_s.iloc[0]
     assert len(pd.read_csv(tmp_path / "scaling.csv")) == 2

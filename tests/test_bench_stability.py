@@ -34,13 +34,13 @@ def cache(tmp_path_factory):
 def result(tmp_path_factory):
     """clarabel at 1e-8, apgd loose (1e-1) and tight (1e-6), in process."""
     out = tmp_path_factory.mktemp("stability")
-    settings = dict(solvers="clarabel,apgd", eps_list=[1e-1, 1e-6, 1e-8], **BASE)
+    settings = dict(solvers="clarabel,apgd", tols=[1e-1, 1e-6, 1e-8], **BASE)
     out, table, lines = run_study(stability.STUDY, out, isolate=False, **settings)
     return table, out, lines
 
 
 def _row(table: pd.DataFrame, solver: str, eps: float) -> pd.Series:
-    rows = table[(table["solver"] == solver) & np.isclose(table["eps"], eps)]
+    rows = table[(table["solver"] == solver) & np.isclose(table["tol"], eps)]
     assert len(rows) == 1
     return rows.iloc[0]
 
@@ -60,7 +60,7 @@ def test_files_and_columns(result):
     series = pd.read_csv(out / "stability.csv")
     assert list(series.columns) == stability.SERIES_COLUMNS
     assert len(table) == 6  # 2 solvers x 3 eps
-    assert (series.groupby(["solver", "eps"]).size() == table["steps_asked"].iloc[0]).all()
+    assert (series.groupby(["solver", "tol"]).size() == table["steps_asked"].iloc[0]).all()
     assert (series["t_over_T"] > 0).all() and series["t_over_T"].max() >= BASE["t_end"]
     assert f"**{THRESHOLD:g}**" in (out / "stability_summary.md").read_text()
     meta = json.loads((out / "stability.meta.json").read_text())
@@ -84,9 +84,9 @@ def test_interior_point_keeps_box_at_rest(result):
     assert row["at_rest"]
     assert row["steps_done"] == row["steps_asked"]
     assert row["max_energy_ratio"] < THRESHOLD
-    assert row["max_ccp_residual"] <= 10 * 1e-8
+    assert row["ccp_residual"] <= 10 * 1e-8
     series = pd.read_csv(out / "stability.csv")
-    mine = series[(series["solver"] == "clarabel") & np.isclose(series["eps"], 1e-8)]
+    mine = series[(series["solver"] == "clarabel") & np.isclose(series["tol"], 1e-8)]
     assert (mine["energy_ratio"] >= 0).all() and (mine["energy_ratio"] < THRESHOLD).all()
 
 
@@ -101,10 +101,10 @@ def test_loose_tolerance_sets_box_in_motion(result):
 @pytest.mark.parametrize(
     "change",
     [
-        dict(eps_list=[]),
-        dict(eps_list=[1e-3, 0.0]),
-        dict(eps_list=[-1e-3]),
-        dict(eps_list=[float("nan")]),
+        dict(tols=[]),
+        dict(tols=[1e-3, 0.0]),
+        dict(tols=[-1e-3]),
+        dict(tols=[float("nan")]),
         dict(n=0),
         dict(dim=1),
         dict(dim=4),
@@ -117,7 +117,7 @@ def test_loose_tolerance_sets_box_in_motion(result):
     ],
 )
 def test_bad_inputs_raise(change, tmp_path):
-    kwargs = {**BASE, "eps_list": [1e-8], **change}
+    kwargs = {**BASE, "tols": [1e-8], **change}
     with pytest.raises(CocdError):
         stability.STUDY(solvers="clarabel", out=tmp_path, **kwargs)
     assert not (tmp_path / "stability.csv").exists()
@@ -125,7 +125,7 @@ def test_bad_inputs_raise(change, tmp_path):
 
 def test_unknown_solver_raises(tmp_path):
     with pytest.raises(SolverNotFound):
-        stability.STUDY(solvers="no-such-solver", eps_list=[1e-8], out=tmp_path, **BASE)
+        stability.STUDY(solvers="no-such-solver", tols=[1e-8], out=tmp_path, **BASE)
     assert issubclass(SolverNotFound, CocdError)
 
 
@@ -145,7 +145,7 @@ def test_backend_failure_is_a_row(tmp_path, monkeypatch):
     lines: list[str] = []
     table = stability.STUDY(
         solvers="clarabel",
-        eps_list=[1e-8, 1e-6],
+        tols=[1e-8, 1e-6],
         out=tmp_path,
         progress=lines.append,
         isolate=False,
@@ -156,7 +156,7 @@ def test_backend_failure_is_a_row(tmp_path, monkeypatch):
     assert "RuntimeError: backend exploded" in failed["note"]
     assert fine["steps_done"] == fine["steps_asked"] and fine["at_rest"]
     series = pd.read_csv(tmp_path / "stability.csv")
-    assert (np.isclose(series["eps"], 1e-8)).sum() == 2
+    assert (np.isclose(series["tol"], 1e-8)).sum() == 2
     meta = json.loads((tmp_path / "stability.meta.json").read_text())
     assert "failed at step 3" in meta["summary"]
     assert any("clarabel eps=1e-08: step 2/" in line for line in lines)
@@ -173,7 +173,7 @@ def test_run_budget_stops_a_slow_run(tmp_path, monkeypatch):
     monkeypatch.setattr(solvers, "solve", slow)
     table = stability.STUDY(
         solvers="clarabel",
-        eps_list=[1e-8],
+        tols=[1e-8],
         out=tmp_path,
         progress=lambda _: None,
         isolate=False,
@@ -186,7 +186,7 @@ def test_run_budget_stops_a_slow_run(tmp_path, monkeypatch):
     meta = json.loads((tmp_path / "stability.meta.json").read_text())
     assert f"budget spent at step {row['steps_done']}" in meta["summary"]
     with pytest.raises(CocdError, match="run_budget"):
-        stability.STUDY(solvers="clarabel", eps_list=[1e-8], out=tmp_path, run_budget=0.0, **BASE)
+        stability.STUDY(solvers="clarabel", tols=[1e-8], out=tmp_path, run_budget=0.0, **BASE)
 
 
 def test_child_failure_and_hang_are_rows(tmp_path):
@@ -195,7 +195,7 @@ def test_child_failure_and_hang_are_rows(tmp_path):
     # machine (a microsecond time limit let a lightly loaded one finish a tiny solve).
     table = stability.STUDY(
         solvers="clarabel:max_iter=1",
-        eps_list=[1e-8],
+        tols=[1e-8],
         out=tmp_path / "error",
         progress=lambda _: None,
         **BASE,
@@ -206,7 +206,7 @@ def test_child_failure_and_hang_are_rows(tmp_path):
     # No grace: the child cannot even start within 1.5 ms, so it is killed as hung.
     table = stability.STUDY(
         solvers="clarabel",
-        eps_list=[1e-8],
+        tols=[1e-8],
         out=tmp_path / "hang",
         progress=lambda _: None,
         grace=0.0,

@@ -42,13 +42,13 @@ def test_table1_tiny_run(tmp_path, cache):
     ours = df[df.source == "this machine"]
     assert sorted(ours.N.unique()) == [20, 51]
     assert len(ours) == 2 * 2  # two columns x two solvers, one eps
-    assert set(ours.eps) == {1e-8} and set(ours.dim) == {2}
+    assert set(ours.tol) == {1e-8} and set(ours.dim) == {2}
     clarabel = ours[ours.solver == "clarabel"]
     assert (clarabel.steps_ok == "2/2").all()
     assert (clarabel.ccp_residual <= 1e-7).all()
-    assert (clarabel.warm == "no").all()
-    assert (ours[ours.solver == "scs-dual"].warm == "yes").all()
-    assert (ours.iterations > 0).all() and (ours.time_per_step_s > 0).all()
+    assert (clarabel.start == "cold").all()
+    assert (ours[ours.solver == "scs-dual"].start == "warm").all()
+    assert (ours.iterations > 0).all() and (ours.wall_s > 0).all()
     assert (ours.Nc > 0).all()
     # Detected with the seed's threshold; the count per grain is beside the seed's.
     assert (ours.d_max_r == table1.D_SEED_2D).all()
@@ -57,8 +57,8 @@ def test_table1_tiny_run(tmp_path, cache):
     seed = df[df.source == table1.SEED]
     assert len(seed) == 4
     assert set(seed.N) == {8308, 50772, 122932}
-    row = seed[(seed.dim == 3) & (seed.eps == 1e-5)].iloc[0]
-    assert row.iterations == 11 and row.time_per_step_s == pytest.approx(269.9)
+    row = seed[(seed.dim == 3) & (seed.tol == 1e-5)].iloc[0]
+    assert row.iterations == 11 and row.wall_s == pytest.approx(269.9)
     assert seed.ccp_residual.isna().all()
     assert seed[seed.dim == 3].Nc_per_grain.iloc[0] == pytest.approx(829505 / 122932)
 
@@ -72,7 +72,7 @@ def test_table1_tiny_run(tmp_path, cache):
     assert "Fastest backend with every step optimal:" in meta["summary"]
     for n in (20, 51):
         rows = ours[(ours.N == n) & (ours.steps_ok == "2/2")]
-        best = rows.loc[rows.time_per_step_s.idxmin()]
+        best = rows.loc[rows.wall_s.idxmin()]
         assert f"- {n} discs, eps 1e-08: {best.solver}," in meta["summary"]
     assert any("recording" in line for line in lines)
     assert any("clarabel eps 1e-08 step 2/2" in line for line in lines)
@@ -82,14 +82,14 @@ def test_table1_tiny_run(tmp_path, cache):
 
 def test_fastest_backend_needs_every_step_optimal():
     nan = float("nan")
-    mine = dict(source=table1.THIS_MACHINE, dim=2, N=100, eps=1e-8)
+    mine = dict(source=table1.THIS_MACHINE, dim=2, N=100, tol=1e-8)
     table = pd.DataFrame(
         [
-            {**mine, "solver": "fast", "steps_ok": "9/10", "time_per_step_s": 0.1},
-            {**mine, "solver": "ipm", "steps_ok": "10/10", "time_per_step_s": 0.5},
-            {**mine, "solver": "clarabel", "steps_ok": "10/10", "time_per_step_s": 2.0},
-            {**mine, "N": 200, "solver": "ipm", "steps_ok": "0/10", "time_per_step_s": 1.0},
-            {**mine, "N": 200, "solver": "clarabel", "steps_ok": "0/0", "time_per_step_s": nan},
+            {**mine, "solver": "fast", "steps_ok": "9/10", "wall_s": 0.1},
+            {**mine, "solver": "ipm", "steps_ok": "10/10", "wall_s": 0.5},
+            {**mine, "solver": "clarabel", "steps_ok": "10/10", "wall_s": 2.0},
+            {**mine, "N": 200, "solver": "ipm", "steps_ok": "0/10", "wall_s": 1.0},
+            {**mine, "N": 200, "solver": "clarabel", "steps_ok": "0/0", "wall_s": nan},
         ]
     )
     assert _table1_report.fastest(table) == [
@@ -116,7 +116,7 @@ def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):
     kept = ours[ours.solver == "clarabel"].reset_index(drop=True)
     before = first[first.source == "this machine"].reset_index(drop=True)
     # The very same measurements, not new solves.
-    assert list(kept.time_per_step_s) == list(before.time_per_step_s)
+    assert list(kept.wall_s) == list(before.wall_s)
     assert not any("clarabel eps" in line for line in lines)
     assert any("apgd eps 1e-08 step 2/2" in line for line in lines)
     assert (ours[ours.solver == "apgd"].steps_ok == "2/2").all()
@@ -133,6 +133,19 @@ def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):
         **TINY,
     )
     assert sum("every row read from the previous table" in line for line in lines) == 2
+    # A table written under the earlier column names is resumed as well.
+    old = pd.read_csv(out / "table1.csv", keep_default_na=False, na_values=[""])
+    old = old.rename(columns={"tol": "eps", "wall_s": "time_per_step_s", "start": "warm"})
+    old["warm"] = old["warm"].map({"cold": "no", "warm": "yes"})
+    old.to_csv(out / "table1.csv", index=False)
+    lines.clear()
+    upgraded = table1.STUDY(
+        solvers="clarabel,apgd", time_limit=60.0, out=out, progress=lines.append, resume=True,
+        **TINY,
+    )  # fmt: skip
+    assert sum("every row read from the previous table" in line for line in lines) == 2
+    mine = upgraded[upgraded.source == "this machine"].reset_index(drop=True)
+    assert list(mine.wall_s) == list(ours.wall_s) and set(mine.start) == {"cold", "warm"}
     (out / "table1.csv").write_text("not,a,table\n1,2,3\n")
     with pytest.raises(CocdError, match="cannot resume"):
         table1.STUDY(solvers="clarabel", time_limit=60.0, out=out, resume=True, **TINY)
@@ -267,7 +280,7 @@ def test_table1_3d_time_limit_skips_tighter_eps(tmp_path, cache, monkeypatch):
         out=tmp_path,
         progress=lambda line: None,
     )
-    ours = df[df.source == "this machine"].set_index(["solver", "eps"])
+    ours = df[df.source == "this machine"].set_index(["solver", "tol"])
     assert list(ours.index) == [
         ("clarabel", 1e-8),
         ("scs-dual", 1e-8),
@@ -287,5 +300,5 @@ def test_table1_3d_time_limit_skips_tighter_eps(tmp_path, cache, monkeypatch):
     assert "ValueError: boom" in ours.loc[("scs-dual", 1e-8), "note"]
     assert "2 not run" in ours.loc[("scs-dual", 1e-8), "note"]
     assert FakeWorker.calls.count(("scs-dual", 1e-8)) == 2
-    assert ours.loc[("scs-dual", 1e-5), "warm"] == "yes"
-    assert ours.loc[("clarabel", 1e-8), "warm"] == "no"
+    assert ours.loc[("scs-dual", 1e-5), "start"] == "warm"
+    assert ours.loc[("clarabel", 1e-8), "start"] == "cold"

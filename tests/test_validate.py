@@ -153,7 +153,7 @@ def test_two_power_laws_are_recovered():
 def test_a_tighter_tolerance_keeps_a_box_at_rest(tmp_path):
     stability.STUDY(
         solvers="apgd",
-        eps_list=[1e-1, 1e-5],
+        tols=[1e-1, 1e-5],
         n=40,
         dim=2,
         t_end=3.0,
@@ -164,7 +164,7 @@ def test_a_tighter_tolerance_keeps_a_box_at_rest(tmp_path):
         out=tmp_path,
         progress=_quiet([]),
     )
-    summary = pd.read_csv(tmp_path / "stability_summary.csv").set_index("eps")
+    summary = pd.read_csv(tmp_path / "stability_summary.csv").set_index("tol")
     table = pd.read_csv(tmp_path / "stability_threshold.csv")
     # A loose answer injects motion; a tight one keeps the box still.
     assert summary.loc[1e-5, "at_rest"] and not summary.loc[1e-1, "at_rest"]
@@ -184,7 +184,7 @@ def test_profile_error_and_thresholds():
     summary = pd.DataFrame(
         {
             "solver": ["a"] * 3 + ["b"] * 2,
-            "eps": [1e-1, 1e-2, 1e-3, 1e-1, 1e-2],
+            "tol": [1e-1, 1e-2, 1e-3, 1e-1, 1e-2],
             "steps_done": [5, 5, 5, 5, 2],
             "steps_asked": [5] * 5,
             "at_rest": [False, True, True, False, False],

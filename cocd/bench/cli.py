@@ -47,3 +47,33 @@ def readme(
         typer.echo(f"wrote {write_readme(out, heading=HEADINGS['bench'])}")
     except CocdError as exc:
         fail(exc)
+
+
+@bench_app.command()
+def upgrade(
+    folder: Annotated[Path, typer.Argument(help="A folder of results (searched recursively).")],
+    dry_run: Annotated[
+        bool, typer.Option("--dry-run", help="Say what would be renamed; write nothing.")
+    ] = False,
+) -> None:
+    """Rename the columns of results written by earlier versions to the current names.
+
+    Values are unchanged (warm's yes/no become start's warm/cold); each record
+    notes what was renamed, and the README is rebuilt.
+    """
+    from cocd.bench.report import write_readme
+    from cocd.bench.upgrade import upgrade_folder
+
+    try:
+        done = upgrade_folder(folder, dry_run=dry_run)
+        for path, names in done.items():
+            pairs = ", ".join(f"{o} -> {n}" for o, n in names.items())
+            typer.echo(f"{'would rename' if dry_run else 'renamed'} in {path}: {pairs}")
+        if not done:
+            typer.echo(f"{folder}: every table already uses the current names")
+        elif not dry_run:
+            for readme in sorted({p.parent for p in done if (p.parent / "README.md").exists()}):
+                if any(readme.glob("*.meta.json")):
+                    typer.echo(f"wrote {write_readme(readme)}")
+    except CocdError as exc:
+        fail(exc)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cocd.bench import estimate
+from cocd.bench import estimate, schema
 from cocd.errors import CocdError
 
 __all__ = [
@@ -253,6 +253,17 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
         "`notes/<name>.md`). All residuals are the framework's (`cocd.residuals`),",
         "the same for every backend.",
         "",
+        "The tables share the names below for the same quantities (`cocd.bench.schema`);",
+        "a row over a sequence of step problems gives means of times and iterations",
+        "and maxima of residuals. Tables of earlier versions are read under these",
+        "names, and `cocd bench upgrade DIR` rewrites them.",
+        "",
+        "<details><summary>Columns</summary>",
+        "",
+        schema.markdown(),
+        "",
+        "</details>",
+        "",
     ]
     for meta in metas:
         lines += [f"## {meta['title']}", "", "```bash", meta["command"], "```", ""]
@@ -263,6 +274,14 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
         files = meta.get("files", [])
         lines.append("Files: " + ", ".join(f"[`{f}`]({f})" for f in files) + ".")
         lines.append("")
+        renamed = meta.get("columns_renamed")
+        if renamed:
+            pairs = ", ".join(f"`{o}` -> `{n}`" for o, n in renamed["names"].items())
+            lines += [
+                f"Columns renamed by `{renamed['by']}` on {renamed['on']} (values "
+                f"unchanged): {pairs}.",
+                "",
+            ]
         if meta.get("summary"):
             lines += [meta["summary"].strip(), ""]
         for f in files:

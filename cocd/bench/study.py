@@ -11,8 +11,8 @@ records.
 A field's metadata, set by :func:`option`, says how the command line spells it:
 ``flag`` (default ``--field-name``), ``help``, ``kind`` for comma-separated
 lists (``"floats"``: numbers > 0; ``"numbers"``: any finite numbers;
-``"ints"``: integers >= 1; ``"names"``: words) and ``argument`` for a
-positional argument.
+``"ints"``: integers >= 1; ``"names"``: words), ``argument`` for a
+positional argument and ``aliases``, earlier flags that still work.
 """
 
 from __future__ import annotations
@@ -65,9 +65,10 @@ def option(
     flag: str | None = None,
     kind: Kind | None = None,
     argument: bool = False,
+    aliases: tuple[str, ...] = (),
 ) -> Any:
     """A settings field with what the command line needs to know of it."""
-    meta = {"help": help, "flag": flag, "kind": kind, "argument": argument}
+    meta = {"help": help, "flag": flag, "kind": kind, "argument": argument, "aliases": aliases}
     if isinstance(default, list | tuple):
         default = tuple(default)
     if default is dataclasses.MISSING:
@@ -235,7 +236,7 @@ def _parameter(f: dataclasses.Field, hints: dict[str, Any]) -> inspect.Parameter
     info = (
         typer.Argument(help=meta["help"])
         if meta.get("argument")
-        else typer.Option(_flag(f), help=meta["help"])
+        else typer.Option(_flag(f), *meta.get("aliases", ()), help=meta["help"])
     )
     param_default = inspect.Parameter.empty if default is dataclasses.MISSING else default
     return inspect.Parameter(

@@ -170,7 +170,7 @@ def plot_stability(
     from matplotlib.lines import Line2D
 
     names = list(dict.fromkeys(table["solver"])) or ["(none)"]
-    eps_all = sorted(set(table["eps"])) or [1.0]
+    eps_all = sorted(set(table["tol"])) or [1.0]
     ncols = min(3, len(names))
     nrows = math.ceil(len(names) / ncols)
     fig, axes = plt.subplots(
@@ -180,14 +180,14 @@ def plot_stability(
     cmap = plt.get_cmap("viridis")
     for ax, name in zip(axes.flat, names, strict=False):
         for eps in eps_all:
-            part = steps[(steps["solver"] == name) & (steps["eps"] == eps)]
+            part = steps[(steps["solver"] == name) & (steps["tol"] == eps)]
             if part.empty:
                 continue
             # The log axis cannot show an exact zero; such points are masked.
             y = part["energy_ratio"].to_numpy(dtype=np.float64)
             y = np.where(y > 0.0, y, np.nan)
             ax.plot(part["t_over_T"], y, color=cmap(norm(eps)), lw=1.2)
-            row = table[(table["solver"] == name) & (table["eps"] == eps)]
+            row = table[(table["solver"] == name) & (table["tol"] == eps)]
             if not row.empty and row["steps_done"].iloc[0] < row["steps_asked"].iloc[0]:
                 ax.plot(part["t_over_T"].iloc[-1], y[-1], "x", color=cmap(norm(eps)), ms=7)
         ax.axhline(threshold, color="crimson", ls="--", lw=1.0)
@@ -202,7 +202,7 @@ def plot_stability(
     # One legend for all panels, with every eps even if a panel lacks a curve.
     handles = [Line2D([], [], color=cmap(norm(e)), label=f"{e:.0e}") for e in eps_all]
     handles.append(Line2D([], [], color="crimson", ls="--", label="threshold"))
-    fig.legend(handles=handles, title="eps", loc="center right", fontsize=8)
+    fig.legend(handles=handles, title="tol", loc="center right", fontsize=8)
     fig.suptitle(f"Box at rest, {n_free} grains in {dim}D (x: run ended early)")
     fig.tight_layout(rect=(0.0, 0.0, 0.9, 1.0))
     fig.savefig(path, dpi=120)

@@ -36,7 +36,8 @@ def write_stability(
         f"`at_rest`: every asked step was taken and the ratio of kinetic to total energy "
         f"Ek / (Ek + Ep), with Ep measured from the floor, stayed below the threshold "
         f"**{threshold:g}**. Time per step is the backend's own set-up plus solve time; "
-        f"`max_ccp_residual` is the framework's residual (the same for every backend). "
+        "`ccp_residual` (largest over the steps) is the framework's residual (the same "
+        "for every backend). "
         f"The seed (Fig. 3, Mosek, 110 233 spheres) keeps the box at rest for eps <= 1e-3."
     )
     files = report.write_table(
@@ -94,18 +95,18 @@ def stability_thresholds(summary: pd.DataFrame) -> pd.DataFrame:
     """Per backend of a stability summary: the largest tolerance at rest."""
     rows = []
     for solver, sub in summary.groupby("solver", sort=False):
-        sub = sub.sort_values("eps", ascending=False)
+        sub = sub.sort_values("tol", ascending=False)
         done = sub[sub.steps_done == sub.steps_asked]
         rest = done[done.at_rest.astype(bool)]
-        largest = float(rest.eps.max()) if len(rest) else math.nan
-        below = done[done.eps <= largest] if len(rest) else done.iloc[0:0]
+        largest = float(rest.tol.max()) if len(rest) else math.nan
+        below = done[done.tol <= largest] if len(rest) else done.iloc[0:0]
         rows.append(
             {
                 "solver": solver,
                 "largest_eps_at_rest": largest,
                 "consistent": bool(below.at_rest.astype(bool).all()) if len(rest) else False,
                 "unfinished": ", ".join(
-                    f"{e:g}" for e in sub.eps[sub.steps_done < sub.steps_asked]
+                    f"{e:g}" for e in sub.tol[sub.steps_done < sub.steps_asked]
                 ),
             }
         )
@@ -126,7 +127,7 @@ def _verdicts(table: pd.DataFrame, threshold: float) -> str:
         return f"{word} ({row['max_energy_ratio']:.1e})"
 
     cells = table.assign(
-        verdict=table.apply(cell, axis=1), eps_label=table["eps"].map(lambda e: f"{e:.0e}")
+        verdict=table.apply(cell, axis=1), eps_label=table["tol"].map(lambda e: f"{e:.0e}")
     )
     order = list(dict.fromkeys(cells["eps_label"]))
     pivot = cells.pivot(index="solver", columns="eps_label", values="verdict")

@@ -39,12 +39,12 @@ def seed_rows() -> list[dict[str, Any]]:
             "Nc_per_grain": float(r["Nc"]) / r["N"],
             "d_max_r": np.nan,  # not given in the seed's text
             "dt": r["dt"],
-            "eps": r["eps"],
+            "tol": r["tol"],
             "solver": "mosek",
-            "warm": "no",
+            "start": "cold",
             "steps_ok": "",
             "iterations": float(r["iterations"]),
-            "time_per_step_s": r["time"],
+            "wall_s": r["time"],
             "ccp_residual": np.nan,
             "coulomb_residual": np.nan,
             "scale": 1.0,
@@ -88,16 +88,16 @@ def write_table1(
             "(the seed ran Mosek on 2 x 8 cores "
             "at full size; its rows are at the bottom). Every backend solves the same "
             f"recorded step problems (trajectory backends at tol {TRAJECTORY_TOL:g}); "
-            "eps is the tol handed to each backend, the residuals are the framework's "
+            "`tol` (the seed's eps) is handed to each backend, the residuals are the framework's "
             "(`cocd.residuals`), max over the steps with an answer (optimal, inaccurate, "
             "or the last iterate of a max_iter stop; failed steps have none), and "
             "`steps_ok` counts the optimal ones. Contacts are detected with a fixed "
             "threshold `d_max_r` (mean radii) that gives the seed's potential contacts per "
             "grain (`Nc_per_grain`; the seed does not state its threshold). "
             "Interior points start cold; backends "
-            "that take a warm start get the previous step's impulses (column `warm`). "
-            f"Time limit {time_limit:g} s per solve; time per step is the wall time of the "
-            "whole call (set-up included), averaged over the solves that returned.",
+            "that take a warm start get the previous step's impulses (column `start`). "
+            f"Time limit {time_limit:g} s per solve; `wall_s` (time per step) is the wall time "
+            "of the whole call (set-up included), averaged over the solves that returned.",
             "",
             *[f"- {h}" for h in halves],
         ]
@@ -109,11 +109,11 @@ def write_table1(
         "N",
         "Nc",
         "Nc_per_grain",
-        "eps",
+        "tol",
         "solver",
         "steps_ok",
         "iterations",
-        "time_per_step_s",
+        "wall_s",
         "ccp_residual",
     ]
     summary = f"N scaled by {_scales_text(scales, wanted)}.\n\n" + table[key].to_markdown(
@@ -136,21 +136,21 @@ def fastest(table: pd.DataFrame, reference: str = "clarabel") -> list[str]:
     was solved to ``optimal``, beside ``reference`` in the same run."""
     mine = table[table["source"] == THIS_MACHINE]
     lines = []
-    for (dim, n, eps), rows in mine.groupby(["dim", "N", "eps"], sort=True):
+    for (dim, n, eps), rows in mine.groupby(["dim", "N", "tol"], sort=True):
         kind = "discs" if dim == 2 else "spheres"
         head = f"- {n} {kind}, eps {eps:g}: "
-        done = rows[rows["steps_ok"].map(_all_optimal) & rows["time_per_step_s"].notna()]
+        done = rows[rows["steps_ok"].map(_all_optimal) & rows["wall_s"].notna()]
         if done.empty:
             lines.append(head + "no backend solved every step to optimal")
             continue
-        best = done.loc[done["time_per_step_s"].idxmin()]
-        line = head + f"{best['solver']}, {best['time_per_step_s']:.3g} s per step"
+        best = done.loc[done["wall_s"].idxmin()]
+        line = head + f"{best['solver']}, {best['wall_s']:.3g} s per step"
         ref = rows[rows["solver"] == reference]
         if best["solver"] != reference and not ref.empty:
             r = ref.iloc[0]
-            t = r["time_per_step_s"]
+            t = r["wall_s"]
             if _all_optimal(r["steps_ok"]) and finite(t):
-                ratio = float(t) / float(best["time_per_step_s"])
+                ratio = float(t) / float(best["wall_s"])
                 line += f"; {reference} {float(t):.3g} s ({ratio:.3g} times as long)"
             else:
                 line += f"; {reference} {r['steps_ok']} optimal" + (
@@ -172,7 +172,7 @@ def _breakdown(table: pd.DataFrame) -> str:
     mine = table[(table["source"] == THIS_MACHINE) & table["t_factor_s"].notna()]
     if mine.empty:
         return ""
-    cols = ["N", "eps", "solver", "iterations", "factorisations", "time_per_step_s", *phases]
+    cols = ["N", "tol", "solver", "iterations", "factorisations", "wall_s", *phases]
     return "Time per step by phase (s; `t_other_s`: the rest of the wall time):\n\n" + mine[
         cols
     ].to_markdown(index=False, floatfmt=".3g")

@@ -144,7 +144,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
                     "solver": solver,
                     "status": got.get("status", "error"),
                     "iterations": got.get("iterations", np.nan),
-                    "time_s": got.get("solve_s", np.nan),
+                    "solve_s": got.get("solve_s", np.nan),
                     "setup_s": convert + float(got.get("setup_s", np.nan)),
                     "wall_s": convert + float(got.get("wall_s", np.nan)),
                     "ccp_residual": got.get("ccp_residual", np.nan),

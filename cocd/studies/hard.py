@@ -11,7 +11,7 @@ is a row saying so, never a crash of the harness.
 Columns (:data:`COLUMNS`)
     ``case``, ``dim``, ``dt``, ``N`` (free grains), ``Nc`` (most contacts in a
     step), ``solver``, ``status``, ``steps_done``, ``iterations`` (mean),
-    ``time_per_step_s`` (mean wall time of the backend's solve call, set-up
+    ``wall_s`` (mean wall time of the backend's solve call, set-up
     included, detection not), ``ccp_residual``, ``coulomb_residual``,
     ``dynamics_residual`` (largest over the steps done, :mod:`cocd.residuals`),
     ``energy_drift`` and ``note``. The matrix and the heatmap judge a
@@ -84,7 +84,7 @@ COLUMNS = [
     "status",
     "steps_done",
     "iterations",
-    "time_per_step_s",
+    "wall_s",
     "ccp_residual",
     "coulomb_residual",
     "dynamics_residual",
@@ -259,7 +259,7 @@ def _row(
         row.update(
             Nc=int(df["nc"].max()),
             iterations=float(df["iterations"].mean()),
-            time_per_step_s=float(df["wall"].mean()),
+            wall_s=float(df["wall"].mean()),
             ccp_residual=float(df["ccp"].max()),
             coulomb_residual=float(df["coulomb"].max()),
             dynamics_residual=float(df["dynamics"].max()),
@@ -485,7 +485,7 @@ def run(
     intro = (
         f"{cfg.steps} steps per case, tol {cfg.tol:g}, time limit {cfg.time_limit:g} s per solve. "
         "status: `ok` when every step was optimal; `N`: free grains; `Nc`: most contacts; "
-        "residuals: largest over the steps; `time_per_step_s`: mean solve wall time; "
+        "residuals: largest over the steps; `wall_s`: mean solve wall time; "
         "`energy_drift`: largest (E - E0) / max(Ek0, sum m g d), positive = energy created."
     )
     files = write_table(out, "hard", table, title=title, intro=intro)

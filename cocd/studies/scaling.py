@@ -8,7 +8,7 @@ packings per row (``packing``):
 - ``column``: the seed's 3D column (``column_collapse(3, n_grains=N,
   width=0.2, bed="rough", mu=0.3)``, lattice packing, released at t = 0),
   mid-flow: the steps from t = 0.1 s, recorded along one ``apgd`` trajectory
-  at eps 1e-5 (cached as ``benchmarks/column3d_solvers.py`` does), each
+  at eps 1e-5 (cached as ``cocd bench column3d-solvers`` does), each
   warm-started from the previous step's impulses for the backends that take
   a warm start;
 - ``box``: a box at rest, ``static_box(3, n_grains=N, mu=0.3)`` settled by rain
@@ -40,9 +40,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cocd.bench import estimate, select_solvers, study
+from cocd.bench import estimate, schema, select_solvers, study
 from cocd.bench.metrics import finite_max, finite_mean, fit_exponent
-from cocd.bench.report import previous_table, write_meta, write_table
+from cocd.bench.report import write_meta, write_table
+from cocd.bench.results import Results
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import record_steps
 from cocd.bench.study import option
@@ -61,16 +62,18 @@ COLUMNS = [
     "Nc",
     "Nc_per_grain",
     "solver",
-    "warm",
-    "eps",
+    "start",
+    "tol",
     "steps_ok",
     "iterations",
-    "time_per_step_s",
+    "wall_s",
     "detect_assemble_s",
     "ccp_residual",
     "peak_rss_gib",
     "note",
 ]
+#: What names a row.
+KEY = ("dim", "packing", "N", "solver", "tol")
 DT_2D, EPS_2D, T_START_2D = 1e-3, 1e-8, 0.11
 DT_3D, EPS_3D = 1e-2, 1e-5
 #: The 3D packings, in the order they are run.
@@ -183,8 +186,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
     rows: list[dict[str, Any]] = (
         _table1_rows(cfg.table1, cfg.solvers) if cfg.table1 is not None else []
     )
-    done = _previous_rows(out / "scaling.csv") if cfg.resume else {}
-    rows += [r for r in done.values() if r["dim"] == 3]
+    done = Results(out / "scaling.csv", COLUMNS, resume=cfg.resume, key=KEY,
+                   keep=lambda row: row["dim"] == 3)  # fmt: skip
+    rows += done.rows
     cases = [(2, "column", n) for n in sorted(cfg.n2d)]
     box_sizes = cfg.n3d if cfg.n3d_box is None else cfg.n3d_box
     cases += [
@@ -214,7 +218,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
     with Worker(memory_gb=memory) as worker:
         for dim, packing, n in cases:
             eps = EPS_2D if dim == 2 else EPS_3D
-            todo = [name for name in names[dim] if dim == 2 or (packing, n, name, eps) not in done]
+            todo = [name for name in names[dim] if not done.has(dim, packing, n, name, eps)]
             if not todo:
                 continue
             if dim == 2:
@@ -226,12 +230,12 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
             nc = float(np.mean([p.nc for p in problems]))
             base = {
                 "dim": dim, "packing": packing, "N": int(n), "Nc": nc,
-                "Nc_per_grain": nc / max(n_free, 1), "eps": eps,
+                "Nc_per_grain": nc / max(n_free, 1), "tol": eps,
                 "detect_assemble_s": detect,
             }  # fmt: skip
             warm = warmup_problem(dim)
             for name in todo:
-                start = "yes" if warms[0] is not None and solvers_warm(name) else "no"
+                start = "warm" if warms[0] is not None and solvers_warm(name) else "cold"
                 key = (dim, packing, name)
                 if key in given_up:
                     rows.append(_skipped_row(base, name, start, cfg.steps, given_up[key]))
@@ -254,11 +258,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
                 rows.append(
                     {
                         **base,
-                        "warm": start,
+                        "start": start,
                         "solver": name,
                         "steps_ok": f"{sum(a['status'] == 'optimal' for a in answers)}/{cfg.steps}",
                         "iterations": finite_mean(ok, "iterations"),
-                        "time_per_step_s": finite_mean(ok, "wall_s"),
+                        "wall_s": finite_mean(ok, "wall_s"),
                         "ccp_residual": finite_max(answers, "ccp_residual"),
                         "peak_rss_gib": finite_max(answers, "peak_rss_gib"),
                         "note": "; ".join([*bad, *notes])[:200],
@@ -266,24 +270,12 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
                 )
                 progress(
                     f"scaling {dim}D {packing} N = {n} Nc = {nc:.0f} {name}: "
-                    f"{rows[-1]['time_per_step_s']:.3g} s/step, {rows[-1]['steps_ok']} optimal"
+                    f"{rows[-1]['wall_s']:.3g} s/step, {rows[-1]['steps_ok']} optimal"
                 )
                 _write(pd.DataFrame(rows, columns=COLUMNS), out, cfg.steps, cfg.time_limit)
     table = pd.DataFrame(rows, columns=COLUMNS)
     _write(table, out, cfg.steps, cfg.time_limit)
     return table
-
-
-def _previous_rows(path: Path) -> dict[tuple[str, int, str, float], dict[str, Any]]:
-    """The 3D rows of an earlier ``scaling.csv``, keyed by (packing, N, solver, eps)."""
-    old = previous_table(path, COLUMNS)
-    if old is None:
-        return {}
-    rows = {}
-    for rec in old[old["dim"] == 3][COLUMNS].to_dict("records"):
-        rec["note"] = "" if pd.isna(rec["note"]) else str(rec["note"])
-        rows[(str(rec["packing"]), int(rec["N"]), str(rec["solver"]), float(rec["eps"]))] = rec
-    return rows
 
 
 def solvers_warm(name: str) -> bool:
@@ -298,18 +290,18 @@ def _skipped_row(
 ) -> dict[str, Any]:
     nan = float("nan")
     return {
-        **base, "warm": start, "solver": name, "steps_ok": f"0/{steps}", "iterations": nan,
-        "time_per_step_s": nan, "ccp_residual": nan, "peak_rss_gib": nan, "note": note,
+        **base, "start": start, "solver": name, "steps_ok": f"0/{steps}", "iterations": nan,
+        "wall_s": nan, "ccp_residual": nan, "peak_rss_gib": nan, "note": note,
     }  # fmt: skip
 
 
 def _table1_rows(path: Path, solvers: str | list[str] | None) -> list[dict[str, Any]]:
     """This machine's 2D rows of a ``table1.csv`` as scaling rows."""
     try:
-        t1 = pd.read_csv(path, keep_default_na=False, na_values=[""])
+        t1 = schema.upgrade(pd.read_csv(path, keep_default_na=False, na_values=[""]))
     except (OSError, ValueError) as exc:
         raise CocdError(f"cannot read Table 1 rows from {path}: {exc}") from None
-    needed = {"source", "dim", "N", "Nc", "Nc_per_grain", "solver", "warm", "eps", "steps_ok"}
+    needed = {"source", "dim", "N", "Nc", "Nc_per_grain", "solver", "start", "tol", "steps_ok"}
     missing = needed - set(t1.columns)
     if missing:
         raise CocdError(f"{path} is not a table1.csv: columns {sorted(missing)} are missing")
@@ -322,12 +314,12 @@ def _table1_rows(path: Path, solvers: str | list[str] | None) -> list[dict[str, 
             "N": int(r["N"]),
             "Nc": float(r["Nc"]),
             "Nc_per_grain": float(r["Nc_per_grain"]),
-            "warm": str(r["warm"]),
+            "start": str(r["start"]),
             "solver": str(r["solver"]),
-            "eps": float(r["eps"]),
+            "tol": float(r["tol"]),
             "steps_ok": str(r["steps_ok"]),
             "iterations": float(r["iterations"]),
-            "time_per_step_s": float(r["time_per_step_s"]),
+            "wall_s": float(r["wall_s"]),
             "detect_assemble_s": float("nan"),
             "ccp_residual": float(r["ccp_residual"]),
             "peak_rss_gib": float("nan"),
@@ -341,8 +333,8 @@ def fits(table: pd.DataFrame) -> pd.DataFrame:
     """One row per (dim, packing, solver): the fitted exponent and the sizes it covers."""
     out = []
     for (dim, packing, solver), group in table.groupby(["dim", "packing", "solver"], sort=False):
-        k, c = fit_exponent(group["N"], group["time_per_step_s"])
-        solved = group[np.isfinite(group["time_per_step_s"])]
+        k, c = fit_exponent(group["N"], group["wall_s"])
+        solved = group[np.isfinite(group["wall_s"])]
         out.append(
             {
                 "dim": dim,
@@ -369,7 +361,7 @@ def _write(table: pd.DataFrame, out: Path, steps: int, time_limit: float) -> Non
         f"2D: Table 1's column collapse, {steps} mid-collapse steps per N (t = 0.11 s, "
         f"dt = 1e-3, eps 1e-8). 3D (dt = 1e-2, eps 1e-5), `packing`: `column`, the seed's "
         f"column (lattice, rough bed, 20 cm channel, mu 0.3) mid-flow, {steps} steps from "
-        f"t = {T_START_3D:g} s, warm-started from the previous step (`warm`); `box`, a "
+        f"t = {T_START_3D:g} s, warm-started from the previous step (`start`); `box`, a "
         "rain-deposited box at rest, its first step, cold; `jammed_box`, equal spheres on a "
         "simple cubic lattice at rest (about 3 contacts per sphere: a lattice, not a "
         "granular packing), cold. N counts the free grains of `box` and `jammed_box` and "
@@ -398,7 +390,7 @@ def _write(table: pd.DataFrame, out: Path, steps: int, time_limit: float) -> Non
             name = f"{solver}, {packing}" if dim == 3 else str(solver)
             fitted_k = float(k.iloc[0]) if len(k) else float("nan")
             label = f"{name} (k = {fitted_k:.2f})" if math.isfinite(fitted_k) else name
-            ax.loglog(group["N"], group["time_per_step_s"], marks.get(packing, "o-"), label=label)
+            ax.loglog(group["N"], group["wall_s"], marks.get(packing, "o-"), label=label)
         ax.set_title(f"{dim}D")
         ax.set_xlabel("N (grains)")
         ax.set_ylabel("time per step (s)")

@@ -67,7 +67,7 @@ FloatArray = NDArray[np.float64]
 #: Columns of ``stability.csv``, one row per step of every run.
 SERIES_COLUMNS = [
     "solver",
-    "eps",
+    "tol",
     "step",
     "t_over_T",
     "energy_ratio",
@@ -83,15 +83,15 @@ SUMMARY_COLUMNS = [
     "dim",
     "N",
     "dt",
-    "eps",
+    "tol",
     "steps_done",
     "steps_asked",
     "max_energy_ratio",
     "final_energy_ratio",
     "at_rest",
-    "mean_iterations",
-    "mean_time_per_step_s",
-    "max_ccp_residual",
+    "iterations",
+    "solve_s",
+    "ccp_residual",
     "max_penetration",
     "note",
 ]
@@ -111,10 +111,11 @@ class Settings:
     """The options of ``cocd bench stability``."""
 
     solvers: str | None = study.solvers()
-    eps_list: tuple[float, ...] = option(
+    tols: tuple[float, ...] = option(
         (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8),
         "Comma-separated tolerances.",
         kind="floats",
+        aliases=("--eps-list",),
     )
     n: int = option(1000, "Spheres in the box.")
     dim: int = option(3, "2 or 3.")
@@ -157,7 +158,7 @@ def run(
         ``dim``.
     """
     eps_values = _check(
-        cfg.eps_list, cfg.n, cfg.dim, cfg.t_end, cfg.dt, cfg.threshold, cfg.time_limit, grace
+        cfg.tols, cfg.n, cfg.dim, cfg.t_end, cfg.dt, cfg.threshold, cfg.time_limit, grace
     )
     if cfg.run_budget is not None and not (cfg.run_budget > 0.0):
         raise CocdError(f"run_budget must be > 0 (or None for no budget), got {cfg.run_budget!r}")
@@ -276,7 +277,7 @@ def _trajectory(
             yield {
                 "kind": "step",
                 "solver": solver,
-                "eps": eps,
+                "tol": eps,
                 "step": rec.step,
                 "t_over_T": rec.t / period,
                 "energy_ratio": ek / (ek + ep) if ek + ep > 0.0 else float("nan"),
@@ -399,16 +400,16 @@ def _summary_row(
         "dim": dim,
         "N": n_free,
         "dt": dt,
-        "eps": eps,
+        "tol": eps,
         "steps_done": done,
         "steps_asked": n_steps,
         "max_energy_ratio": max_ratio,
         "final_energy_ratio": float(ratio[-1]) if done else float("nan"),
         # A run that stopped early did not show that the box stays at rest.
         "at_rest": bool(done == n_steps and not note and max_ratio < threshold),
-        "mean_iterations": stat([s["iterations"] for s in steps], np.mean),
-        "mean_time_per_step_s": stat([s["solve_s"] for s in steps], np.mean),
-        "max_ccp_residual": stat(ccp, np.max),
+        "iterations": stat([s["iterations"] for s in steps], np.mean),
+        "solve_s": stat([s["solve_s"] for s in steps], np.mean),
+        "ccp_residual": stat(ccp, np.max),
         "max_penetration": stat(
             [s["penetration"] for s in steps if np.isfinite(s.get("penetration", np.nan))], np.max
         ),
@@ -418,7 +419,7 @@ def _summary_row(
 
 # -- checks and outputs ----------------------------------------------------------
 def _check(
-    eps_list: Sequence[float],
+    tols: Sequence[float],
     n: int,
     dim: int,
     t_end: float,
@@ -433,11 +434,11 @@ def _check(
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise CocdError(f"n (the number of grains) must be an integer >= 1, got {n!r}")
     try:
-        eps_values = [float(e) for e in eps_list]
+        eps_values = [float(e) for e in tols]
     except (TypeError, ValueError):
-        raise CocdError(f"eps_list must be a list of numbers, got {eps_list!r}") from None
+        raise CocdError(f"tols must be a list of numbers, got {tols!r}") from None
     if not eps_values:
-        raise CocdError("eps_list is empty: give at least one tolerance")
+        raise CocdError("tols is empty: give at least one tolerance")
     bad = [e for e in eps_values if not (math.isfinite(e) and e > 0.0)]
     if bad:
         raise CocdError(f"every eps must be finite and > 0, got {bad}")
@@ -470,8 +471,11 @@ class SeedSettings(Settings):
     validation, five tolerances, a time limit and a budget per run."""
 
     solvers: str | None = study.solvers("ipm,clarabel,scs,apgd,pgs,nscd")
-    eps_list: tuple[float, ...] = option(
-        (1e-1, 1e-2, 1e-3, 1e-4, 1e-6), "Comma-separated tolerances.", kind="floats"
+    tols: tuple[float, ...] = option(
+        (1e-1, 1e-2, 1e-3, 1e-4, 1e-6),
+        "Comma-separated tolerances.",
+        kind="floats",
+        aliases=("--eps-list",),
     )
     n: int = option(300, "Grains in the box.")
     time_limit: float = study.time_limit(30.0)

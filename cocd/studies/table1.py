@@ -45,7 +45,8 @@ import pandas as pd
 import solvers
 from cocd.bench import estimate, select_solvers, study
 from cocd.bench.metrics import finite_max, finite_mean
-from cocd.bench.report import previous_table, throttled
+from cocd.bench.report import throttled
+from cocd.bench.results import Results
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, cache_path, record_steps
 from cocd.bench.study import option
@@ -54,7 +55,6 @@ from cocd.errors import CocdError
 from cocd.scene import Scene
 from cocd.studies._table1_report import fmt, seed_rows, write_table1
 from cocd.studies._table1_setup import (
-    _LATER_COLUMNS,
     CASE_2D,
     CASE_3D,
     CHANNEL_WIDTH,
@@ -104,6 +104,9 @@ __all__ = [
     "run",
 ]
 
+#: What names a row: a column's size and contact threshold, the backend and its tol
+#: (rows of another threshold were solved on other problems).
+KEY = ("dim", "N", "d_max_r", "solver", "tol")
 #: Statuses for which the backend returned within its limits (timed and counted).
 _RETURNED = ("optimal", "inaccurate", "max_iter")
 #: Statuses after which the rest of a case is not worth the time.
@@ -164,7 +167,13 @@ def run(
         scale if cfg.scale_3d is None else cfg.scale_3d, cfg.cases, steps, cfg.time_limit, None
     )
     cap = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
-    done = _previous_rows(Path(out) / "table1.csv") if cfg.resume else {}
+    done = Results(
+        Path(out) / "table1.csv",
+        COLUMNS,
+        resume=cfg.resume,
+        key=KEY,
+        keep=lambda row: row["source"] == THIS_MACHINE,
+    )
     trajectory = {dim: _trajectory_solver(cfg.trajectory_solver, dim) for dim in (2, 3)}
     # Both lists first, so that a bad name fails before any work.
     names = {dim: select_solvers(cfg.solvers, dim) for dim in (2, 3) if f"{dim}d" in wanted}
@@ -262,7 +271,7 @@ def _run_case(
     trajectory: str,
     memory_gb: float,
     progress: Callable[[str], None],
-    done: dict[tuple[int, int, float, str, float], dict[str, Any]],
+    done: Results,
     emit: Callable[[dict[str, Any]], None],
 ) -> None:
     """Record one case's step problems, then run every backend on them at every eps.
@@ -280,9 +289,9 @@ def _run_case(
     todo = []
     for name in names:
         for eps in sorted(eps_list, reverse=True):
-            key = (dim, n, float(eps), name, float(d_max_r))
-            if key in done:
-                emit(done[key])
+            earlier = done.get(dim, n, d_max_r, name, eps)
+            if earlier is not None:
+                emit(earlier)
             else:
                 todo.append((name, eps))
     if not todo:
@@ -314,8 +323,8 @@ def _run_case(
         note = f"no step problems: trajectory ({trajectory}) failed: {str(exc)[:200]}"
         progress(f"{label}: {note}")
         for name, eps in todo:
-            emit({**base, "Nc": np.nan, "Nc_per_grain": np.nan, "eps": eps, "solver": name,
-                  "warm": "no", "note": note})  # fmt: skip
+            emit({**base, "Nc": np.nan, "Nc_per_grain": np.nan, "tol": eps, "solver": name,
+                  "start": "cold", "note": note})  # fmt: skip
         return
     nc = float(np.mean([p.nc for p in seq.problems]))
     built = "read from the cache" if seq.build_time == 0.0 else f"{seq.build_time:.0f} s"
@@ -331,9 +340,9 @@ def _run_case(
             if name in timed_out_at:
                 row = {
                     **base,
-                    "eps": eps,
+                    "tol": eps,
                     "solver": name,
-                    "warm": "yes" if _takes_warm_start(name, seq) else "no",
+                    "start": "warm" if _takes_warm_start(name, seq) else "cold",
                     "note": "not run: time limit on the first problem at eps "
                     f"{timed_out_at[name]:g}",
                 }
@@ -344,7 +353,7 @@ def _run_case(
                 stats = _solver_rows(
                     worker, seq, name, eps, time_limit, label, progress, row_budget
                 )
-                row = {**base, "eps": eps, "solver": name, **stats}
+                row = {**base, "tol": eps, "solver": name, **stats}
                 if stats["first_status"] == "time_limit":
                     timed_out_at[name] = eps
             emit({k: v for k, v in row.items() if k in COLUMNS})
@@ -395,31 +404,7 @@ def _ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     first: dict[str, int] = {}
     for k, r in enumerate(rows):
         first.setdefault(r["solver"], k)
-    return sorted(rows, key=lambda r: (r["dim"], r["N"], r["eps"], first[r["solver"]]))
-
-
-def _previous_rows(path: Path) -> dict[tuple[int, int, float, str, float], dict[str, Any]]:
-    """Rows of this machine in an earlier ``table1.csv``, keyed by (dim, N, eps, solver,
-    detection threshold); a table written before the threshold was a column has none
-    to reuse (its problems were detected with another threshold)."""
-    old = previous_table(
-        path, COLUMNS, optional=frozenset({"Nc_per_grain", "d_max_r"}), filled=_LATER_COLUMNS
-    )
-    if old is None:
-        return {}
-    old = old[old["source"] == THIS_MACHINE].astype(object)
-    old = old.where(pd.notna(old), None)
-    rows: dict[tuple[int, int, float, str, float], dict[str, Any]] = {}
-    numbers = ("Nc", "Nc_per_grain", "d_max_r", "iterations", "time_per_step_s",
-               "ccp_residual", "coulomb_residual", *_LATER_COLUMNS)  # fmt: skip
-    for rec in old[COLUMNS].to_dict("records"):
-        rec["note"] = rec["note"] or ""
-        rec["steps_ok"] = rec["steps_ok"] or ""
-        for key in numbers:
-            rec[key] = np.nan if rec[key] is None else float(rec[key])
-        where = (int(rec["dim"]), int(rec["N"]), float(rec["eps"]), str(rec["solver"]))
-        rows[(*where, float(rec["d_max_r"]))] = rec
-    return rows
+    return sorted(rows, key=lambda r: (r["dim"], r["N"], r["tol"], first[r["solver"]]))
 
 
 def _takes_warm_start(name: str, seq: StepSequence) -> bool:
@@ -444,10 +429,10 @@ def _summarise(
     elif len(answers) < total:
         notes.append(f"stopped after the first problem ({total - len(answers)} not run)")
     return {
-        "warm": "yes" if warm else "no",
+        "start": "warm" if warm else "cold",
         "steps_ok": f"{ok}/{total}",
         "iterations": finite_mean(returned, "iterations"),
-        "time_per_step_s": finite_mean(returned, "wall_s"),
+        "wall_s": finite_mean(returned, "wall_s"),
         "ccp_residual": finite_max(answers, "ccp_residual"),
         "coulomb_residual": finite_max(answers, "coulomb_residual"),
         "factorisations": finite_mean(returned, "factorisations"),

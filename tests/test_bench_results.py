@@ -1,0 +1,115 @@
+"""The harness's one result schema, its resumable tables and ``cocd bench upgrade``."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from cocd.bench import schema
+from cocd.bench.report import write_meta, write_readme, write_table
+from cocd.bench.results import Results
+from cocd.cli import app
+from cocd.errors import CocdError
+
+runner = CliRunner()
+COLUMNS = ["problem", "solver", "tol", "status", "iterations", "wall_s", "note"]
+
+
+def test_rows_are_kept_by_key_and_resumed(tmp_path):
+    path = tmp_path / "t.csv"
+    table = Results(path, COLUMNS)
+    table.add(dict(problem="a", solver="ipm", tol=1e-8, status="optimal", iterations=12))
+    table.add(dict(problem="a", solver="ipm", tol=1e-5, status="optimal", iterations=7))
+    # The same key replaces its row.
+    table.add(dict(problem="a", solver="ipm", tol=1e-8, status="optimal", iterations=13))
+    assert len(table) == 2 and table.get("a", "ipm", 1e-8)["iterations"] == 13
+    assert list(pd.read_csv(path).iterations) == [13, 7]
+    assert not list(tmp_path.glob(".*.tmp"))
+    # Read back: a tol parsed from the file is the tol computed (1e-8 == 0.1 * 1e-7).
+    again = Results(path, COLUMNS, resume=True)
+    assert again.resumed == 2 and again.has("a", "ipm", 0.1 * 1e-7)
+    assert again.has(problem="a", solver="ipm", tol=1e-5) and not again.has("a", "scs", 1e-5)
+    assert again.get("a", "ipm", 1e-5)["note"] == "" and np.isnan(
+        again.get("a", "ipm", 1e-5)["wall_s"]
+    )
+    # Without resume the earlier rows are not read (the file is replaced at the first add).
+    assert len(Results(path, COLUMNS)) == 0
+    with pytest.raises(TypeError, match="the key is"):
+        again.has("a", "ipm")
+
+
+def test_a_table_of_earlier_names_is_resumed_under_the_new_ones(tmp_path):
+    path = tmp_path / "t.csv"
+    pd.DataFrame(
+        {"problem": ["a"], "backend": ["apgd"], "eps": [1e-6], "warm": ["yes"],
+         "time_per_step_s": [0.5], "status": ["optimal"]}
+    ).to_csv(path, index=False)  # fmt: skip
+    table = Results(path, [*COLUMNS, "start"], resume=True, keep=lambda r: r["start"] == "warm")
+    row = table.get("a", "apgd", 1e-6)
+    assert row is not None and row["wall_s"] == 0.5 and row["start"] == "warm"
+    up = schema.upgrade(pd.read_csv(path))
+    assert list(up.columns) == ["problem", "solver", "tol", "start", "wall_s", "status"]
+
+
+def test_a_table_without_the_key_is_not_resumed(tmp_path):
+    path = tmp_path / "t.csv"
+    pd.DataFrame({"problem": ["a"], "status": ["optimal"]}).to_csv(path, index=False)
+    with pytest.raises(
+        CocdError, match=r"cannot resume from .*t\.csv: it has no solver, tol column"
+    ):
+        Results(path, COLUMNS, resume=True)
+    path.write_text('a,"b\n')
+    with pytest.raises(CocdError, match="cannot resume"):
+        Results(path, COLUMNS, resume=True)
+
+
+def _old_results(out):
+    """A results folder as an earlier version wrote it."""
+    old = pd.DataFrame(
+        {"case": ["c1", "c1"], "solver": ["ipm", "apgd"], "eps": [1e-8, 1e-8],
+         "warm": ["no", "yes"], "time_per_step_s": [0.25, 1.5]}
+    )  # fmt: skip
+    files = write_table(out, "old", old, title="An old table", command="cocd bench old")
+    summary = old.to_markdown(index=False)
+    write_meta(out, "old", title="An old table", files=files, summary=summary, command="x")
+    write_readme(out)
+    return old
+
+
+def test_cocd_bench_upgrade_renames_columns_and_says_so(tmp_path):
+    out = tmp_path / "results"
+    old = _old_results(out)
+    before = {p.name: p.read_text() for p in out.iterdir()}
+    dry = runner.invoke(app, ["bench", "upgrade", str(out), "--dry-run"])
+    assert dry.exit_code == 0 and "would rename in" in dry.output
+    assert {p.name: p.read_text() for p in out.iterdir()} == before
+    result = runner.invoke(app, ["bench", "upgrade", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "eps -> tol" in result.output and "time_per_step_s -> wall_s" in result.output
+    new = pd.read_csv(out / "old.csv")
+    assert list(new.columns) == ["case", "solver", "tol", "start", "wall_s"]
+    assert list(new.start) == ["cold", "warm"] and list(new.wall_s) == list(old.time_per_step_s)
+    md = (out / "old.md").read_text()
+    header = md.split("\n\n")[-1].splitlines()[0]
+    assert re.search(r"\|\s+tol\s+\|", header) and "eps" not in header and "| warm " in md
+    meta = json.loads((out / "old.meta.json").read_text())
+    assert meta["columns_renamed"]["names"] == {"eps": "tol", "warm": "start",
+                                                "time_per_step_s": "wall_s"}  # fmt: skip
+    assert "wall_s" in meta["summary"] and "time_per_step_s" not in meta["summary"]
+    readme = (out / "README.md").read_text()
+    assert "Columns renamed by `cocd bench upgrade`" in readme and "| `tol` |" in readme
+    again = runner.invoke(app, ["bench", "upgrade", str(out)])
+    assert again.exit_code == 0 and "already uses the current names" in again.output
+
+
+def test_cocd_bench_upgrade_of_no_folder_is_one_line(tmp_path):
+    result = runner.invoke(app, ["bench", "upgrade", str(tmp_path / "none")])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines() == [
+        f"error: {tmp_path / 'none'} is not a folder of results"
+    ]
