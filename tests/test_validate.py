@@ -136,6 +136,10 @@ def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path
     again = avalanche(mus=[0.1, 0.6], out=tmp_path, progress=lines.append, **kwargs)
     assert sum("already measured" in line for line in lines) == 2
     assert np.allclose(again.avalanche_deg, table.avalanche_deg)
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "avalanche_trace.csv"), trace)
+    # Kept by coefficient and by the options that shape it: another solver is a new cell.
+    cells = pd.read_csv(tmp_path / "runs" / "avalanche" / "cells.csv")
+    assert len(cells) == 2 and cells.setup.str.contains("solver=clarabel tol=").all()
 
 
 def test_two_power_laws_are_recovered():

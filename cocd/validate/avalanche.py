@@ -18,9 +18,11 @@ flow at a steeper slope than the one at which it stops (a DEM shows it; the
 continuum model of seed 001, with one friction angle, cannot). Both angles
 grow with the grains' friction coefficient.
 
-Each friction coefficient is one sequence of holds; its result row is written
-to ``OUT/runs/avalanche/mu<mu>.csv`` when done, so a command run again skips
-the coefficients already measured (``fresh`` redoes them).
+Each friction coefficient is one sequence of holds; its row and holds are kept
+in ``OUT/runs/avalanche/cells.csv`` and ``holds.csv``
+(:class:`~cocd.bench.results.Results`, keyed on the coefficient and every other
+option that shapes the result), so a command run again skips the coefficients
+already measured with the same options (``fresh`` redoes them).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from cocd.bench import estimate
+from cocd.bench.results import Results
 from cocd.bench.study import option
 from cocd.errors import CocdError, SolverError
 from cocd.validate import _common as base
@@ -43,6 +46,15 @@ from cocd.validate._common import RunSettings, register
 __all__ = ["STUDY", "Settings", "run", "surface_angle"]
 
 G = 9.81
+#: A friction coefficient's result, and one hold of its sequence.
+CELL_COLUMNS = [
+    "mu", "n_grains", "avalanche_tilt_deg", "avalanche_deg", "stop_tilt_deg", "stop_deg",
+    "hysteresis_deg", "holds", "steps", "penetration_max", "compute_s", "setup",
+]  # fmt: skip
+HOLD_COLUMNS = [
+    "mu", "phase", "tilt_deg", "t", "mean_speed", "surface_before_deg", "surface_after_deg",
+    "setup",
+]  # fmt: skip
 
 
 def surface_angle(scene: Any, tilt_deg: float, *, margin_d: float = 3.0) -> float:
@@ -106,27 +118,35 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if not (0.0 <= cfg.start_deg < cfg.max_deg < 90.0):
         raise CocdError(f"need 0 <= start_deg < max_deg < 90, got {cfg.start_deg}, {cfg.max_deg}")
     out = Path(out)
-    cells = out / "runs" / "avalanche"
-    cells.mkdir(parents=True, exist_ok=True)
+    folder = out / "runs" / "avalanche"
+    setup = (
+        f"n={n} solver={cfg.solver} tol={cfg.tol:g} fallback={cfg.fallback} dt={dt:g} "
+        f"hold={hold:g} step={step_deg:g} start={cfg.start_deg:g} d={diameter:g} "
+        f"width={width_d:g}d v_flow={v_flow:g}"
+    )
+    cells = Results(folder / "cells.csv", CELL_COLUMNS, resume=not cfg.fresh, key=("mu", "setup"))
+    holds_kept = Results(folder / "holds.csv", HOLD_COLUMNS, resume=not cfg.fresh,
+                         key=("setup", "mu", "phase", "tilt_deg"))  # fmt: skip
     hold_steps = max(1, round(hold / dt))
     threshold = v_flow * math.sqrt(G * diameter)
     # A guide: up to the angle of repose near atan(mu) + 10 deg, then back down.
     holds = [
         2 * (math.degrees(math.atan(mu)) + 10.0 - cfg.start_deg) / step_deg
         for mu in mus
-        if cfg.fresh or not (cells / f"n{n}_mu{mu:g}.csv").exists()
+        if not cells.has(mu, setup)
     ]
     estimate.announce(
         "avalanche", [(n, max(h, 2.0) * hold_steps) for h in holds], out=out, progress=progress
     )
     rows, traces = [], []
     for mu in mus:
-        cell = cells / f"n{n}_mu{mu:g}.csv"
-        trace_file = cells / f"n{n}_mu{mu:g}_trace.csv"
-        if cell.exists() and trace_file.exists() and not cfg.fresh:
-            rows.append(pd.read_csv(cell).iloc[0].to_dict())
-            traces.append(pd.read_csv(trace_file))
-            progress(f"avalanche: mu = {mu:g} already measured ({cell})")
+        done = cells.get(mu, setup)
+        if done is not None:
+            rows.append({k: v for k, v in done.items() if k != "setup"})
+            mine = holds_kept.frame()
+            mine = mine[(mine.setup == setup) & np.isclose(mine.mu.astype(float), mu)]
+            traces.append(mine.drop(columns="setup").reset_index(drop=True))
+            progress(f"avalanche: mu = {mu:g} already measured ({cells.path})")
             continue
         scene = static_box(2, n_grains=n, diameter=diameter, width=width_d * diameter, mu=mu)
         stepper = Stepper(scene, dt, solver=cfg.solver, tol=cfg.tol, fallback=cfg.fallback)
@@ -163,8 +183,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             f"avalanche: mu = {mu:g}: avalanche at {avalanche_deg:.1f} deg, stops at tilt {tilt:g} "
             f"with its surface at {row['stop_deg']:.1f} deg"
         )
-        pd.DataFrame(trace).to_csv(trace_file, index=False)
-        pd.DataFrame([row]).to_csv(cell, index=False)  # last: marks the cell done
+        for hold_row in trace:
+            holds_kept.add({**hold_row, "setup": setup}, save=False)
+        holds_kept.save()
+        cells.add({**row, "setup": setup})  # last: marks the cell done
         rows.append(row)
         traces.append(pd.DataFrame(trace))
     table = pd.DataFrame(rows)
