@@ -236,6 +236,15 @@ def test_cli_runs_the_command(cache, tmp_path):
     csv = pd.read_csv(tmp_path / "precision.csv")
     assert list(csv["tol"]) == [1e-4, 1e-8] and set(csv["solver"]) == {"clarabel"}
     assert (tmp_path / "README.md").is_file()
+    # --resume keeps clarabel's rows as they are and solves only the new backend's.
+    more = [a if a != "clarabel" else "clarabel,scs-dual" for a in args]
+    again = CliRunner().invoke(app, [*more, "--resume"])
+    assert again.exit_code == 0, again.output
+    assert again.output.count("(kept from the earlier table)") == 2
+    after = pd.read_csv(tmp_path / "precision.csv")
+    mine = after[after.solver == "clarabel"].reset_index(drop=True)
+    assert list(mine.wall_s) == list(csv.wall_s) and len(after) == 2 + 4  # scs: cold, warm
+    assert (after[after.solver == "scs-dual"].ccp_residual <= 1e-3).all()
     bad = CliRunner().invoke(app, ["bench", "precision", "--n2d", "0", "--n3d", "0"])
     assert bad.exit_code == 2 and "both 0" in bad.output
 

@@ -133,6 +133,10 @@ def test_table1_resume_keeps_rows_and_solves_the_rest(tmp_path, cache):
         **TINY,
     )
     assert sum("every row read from the previous table" in line for line in lines) == 2
+    # Resumed with fewer backends, the other rows are kept too: nothing is lost.
+    fewer = table1.STUDY(solvers="apgd", time_limit=60.0, out=out, progress=print, resume=True,
+                         **TINY)  # fmt: skip
+    assert len(fewer[fewer.source == "this machine"]) == 4
     # A table written under the earlier column names is resumed as well.
     old = pd.read_csv(out / "table1.csv", keep_default_na=False, na_values=[""])
     old = old.rename(columns={"tol": "eps", "wall_s": "time_per_step_s", "start": "warm"})

@@ -86,6 +86,15 @@ def time_limit(default: float) -> Any:
     return option(default, "Seconds per solve before a backend is stopped.")
 
 
+def resume(table: str, help: str = "") -> Any:
+    """The ``--resume`` option: keep the rows of ``OUT/<table>.csv`` and solve only the
+    others (:class:`cocd.bench.results.Results`)."""
+    return option(
+        False,
+        help or f"Keep the rows already in OUT/{table}.csv (all of them); solve only the others.",
+    )
+
+
 def memory_gb() -> Any:
     """The ``--memory-gb`` option: the memory cap of a backend's child process."""
     return option(None, "Memory cap per backend process (GiB; default 3/4 of RAM).")

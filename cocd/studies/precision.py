@@ -74,6 +74,7 @@ from cocd.bench.metrics import (
     shifted_geometric_mean,
 )
 from cocd.bench.report import throttled, write_meta, write_table
+from cocd.bench.results import Results
 from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
 from cocd.bench.study import option
@@ -112,6 +113,9 @@ REFERENCE_FALLBACKS = ("clarabel-dual", "scs-dual")
 COLUMNS = ["problem", "dim", "N", "Nc", "dt", "start", "solver", "tol"] + [
     c for c in ROW_COLUMNS if c != "solver"
 ]
+
+#: What names a row of ``precision.csv``.
+KEY = ("problem", "N", "solver", "start", "tol")
 
 #: Runs whose child was killed, i.e. the next job starts in a fresh process.
 _KILLED = ("killed", "child exited")
@@ -171,6 +175,7 @@ class Settings:
     n3d: int = option(1000, "Spheres in the 3D box.")
     time_limit: float = study.time_limit(300.0)
     memory_gb: float | None = study.memory_gb()
+    resume: bool = study.resume("precision")
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) -> pd.DataFrame:
@@ -214,6 +219,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
         instances.append(_instance(case, progress))
         warmups[case.dim] = warmup_problem(case.dim)
 
+    # Every row of an earlier run is kept with --resume; this run's replace theirs.
+    kept = Results(out / "precision.csv", COLUMNS, resume=cfg.resume, key=KEY)
     rows: list[dict[str, Any]] = []
     plan = [(i, n, s) for i in instances for n in chosen[i.label] for s in _starts(i, n)]
     total, count = len(plan) * len(tol_list), 0
@@ -233,7 +240,12 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
                     "start": start,
                     "tol": tol,
                 }
-                if timed_out_at is not None:
+                earlier = kept.get(inst.label, inst.n_free, name, start, tol)
+                if earlier is not None:
+                    row = {k: v for k, v in earlier.items() if k not in base}
+                    if _timed_out(row, cfg.time_limit):
+                        timed_out_at = tol
+                elif timed_out_at is not None:
                     row = _skipped(name, f"timed out at tol {timed_out_at:g}")
                 else:
                     jobs.warm_up(name, warmups[inst.dim], tol_list[0])
@@ -242,13 +254,15 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
                     if _timed_out(row, cfg.time_limit):
                         timed_out_at = tol
                 rows.append({**base, **row})
-                progress(f"[{count}/{total}] {_describe(rows[-1])}")
+                kept.add(rows[-1], save=False)
+                said = " (kept from the earlier table)" if earlier is not None else ""
+                progress(f"[{count}/{total}] {_describe(rows[-1])}{said}")
             # Written after every sweep: a run of an hour that is stopped keeps its rows.
-            pd.DataFrame(rows, columns=COLUMNS).to_csv(out / "precision.csv", index=False)
+            kept.save()
 
+    files = [kept.save()]
+    # What follows is this run's: the rows of its problems, backends and tolerances.
     table = pd.DataFrame(rows, columns=COLUMNS)
-    files = [out / "precision.csv"]
-    table.to_csv(files[0], index=False)
 
     names = list(dict.fromkeys(n for i in instances for n in chosen[i.label]))
     warm_capable_set = {n for n in names if backends.get(n).warm_start}

@@ -147,7 +147,7 @@ class Settings:
     n3d_box: tuple[int, ...] | None = option(
         None, "Sizes of the box packing, if not those of --n3d.", kind="ints"
     )
-    resume: bool = option(False, "Keep OUT/scaling.csv's 3D rows; run the others.")
+    resume: bool = study.resume("scaling", "Keep OUT/scaling.csv's 3D rows; run the others.")
     steps: int = option(3, "Problems timed per size.")
     trajectory: str = option("ipm", "Backend that steps the 2D columns.")
     table1: Path | None = option(None, "Take the 2D rows from this table1.csv instead.")

@@ -124,7 +124,7 @@ class Settings:
     steps: int = option(10, "Steps averaged per row.")
     time_limit: float = study.time_limit(600.0)
     memory_gb: float | None = study.memory_gb()
-    resume: bool = option(False, "Keep the rows already in OUT/table1.csv; solve only the others.")
+    resume: bool = study.resume("table1")
     row_budget: float | None = option(
         None, "Seconds of solving after which a row stops (slow backends)."
     )
@@ -180,11 +180,11 @@ def run(
     for dim, chosen in names.items():
         if not chosen:
             progress(f"table1: no selected backend solves {dim}D problems; {dim}D skipped")
-    rows: list[dict[str, Any]] = []
     start = time.perf_counter()
 
     def write() -> pd.DataFrame:
-        table = pd.DataFrame(_ordered(rows) + seed_rows(), columns=COLUMNS)
+        # Every row kept: a resumed run that stops keeps the earlier rows it had not reached.
+        table = pd.DataFrame(_ordered(done.rows) + seed_rows(), columns=COLUMNS)
         write_table1(
             out,
             table,
@@ -199,7 +199,7 @@ def run(
         return table
 
     def emit(row: dict[str, Any]) -> None:
-        rows.append(row)
+        done.add(row, save=False)  # written with the seed's rows by write()
         write()
 
     plan: list[_Case] = []
