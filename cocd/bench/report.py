@@ -20,7 +20,7 @@ import platform
 import shlex
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -164,6 +164,24 @@ def write_table(
         f.write(table.to_markdown(index=False, floatfmt=floatfmt))
         f.write("\n")
     return [csv, md]
+
+
+def publish(
+    out: Path,
+    name: str,
+    table: pd.DataFrame,
+    *,
+    title: str,
+    intro: str = "",
+    summary: str = "",
+    figures: Sequence[Path] = (),
+) -> list[Path]:
+    """Write a study's main table (:func:`write_table`) and its record (:func:`write_meta`,
+    listing ``figures`` too); the files written. ``OUT/README.md`` is rebuilt when the
+    study returns (:class:`cocd.bench.study.Study`)."""
+    files = [*write_table(out, name, table, title=title, intro=intro), *figures]
+    write_meta(out, name, title=title, files=files, summary=summary)
+    return files
 
 
 def previous_table(

@@ -131,8 +131,7 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
         f"per backend, OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}; "
         "`u_error` against clarabel at tol 1e-10."
     )
-    files = report.write_table(out, "backends", table, title=title, intro=intro)
-    report.write_meta(out, "backends", title=title, files=files)
+    report.publish(out, "backends", table, title=title, intro=intro)
     return table
 
 

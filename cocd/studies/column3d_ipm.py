@@ -135,7 +135,6 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
         "Cholesky factor; `factor_s`: one numerical factorisation; `setup_s`: ordering and "
         "symbolic factorisation included."
     )
-    files = report.write_table(out, "column3d_ipm", table, title=title, intro=intro)
     summary = (
         f"{intro} At {b['N']} spheres the factor has {b['L_nnz']:.3g} entries "
         f"({b['L_GB']:.3g} GB) and one factorisation takes {b['factor_s']:.3g} s; "
@@ -151,7 +150,7 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
             f"{f['full_iterations']} iterations in {f['full_solve_s']:.3g} s, residual "
             f"{f['full_ccp']:.3g} (best at iteration {f['full_best_iteration']})."
         )
-    report.write_meta(out, "column3d_ipm", title=title, files=files, summary=summary)
+    report.publish(out, "column3d_ipm", table, title=title, intro=intro, summary=summary)
     progress(summary)
     return table
 

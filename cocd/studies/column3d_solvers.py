@@ -188,9 +188,8 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
         f"{cfg.time_limit:g} s."
     )
     title = "First-order 3D backends on a step of the seed's 3D column"
-    files = report.write_table(out, "column3d_solvers", table, title=title, intro=setting)
     summary = _summary(table, setting, warm_r, zero_r)
-    report.write_meta(out, "column3d_solvers", title=title, files=files, summary=summary)
+    report.publish(out, "column3d_solvers", table, title=title, intro=setting, summary=summary)
     progress(summary)
     return table
 

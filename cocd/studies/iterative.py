@@ -78,8 +78,7 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
         f"dt = {seq.dt:g} s; tol {cfg.tol:g}. `u_error` is against clarabel at tol 1e-10, "
         "relative to max(||u_ref||, ||U||); `wall_s` is the wall-clock time of the solve."
     )
-    files = report.write_table(out, "iterative", table, title=title, intro=intro)
-    report.write_meta(out, "iterative", title=title, files=files)
+    report.publish(out, "iterative", table, title=title, intro=intro)
     return table
 
 

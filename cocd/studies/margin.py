@@ -166,9 +166,8 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
         "`record` only measure; the default redoes a step whose grains went through, with "
         "the margin of those grains widened (`redos`)."
     )
-    files = report.write_table(out, "margin", table, title=title, intro=intro)
     summary = "\n\n".join(summary_lines(table))
-    report.write_meta(out, "margin", title=title, files=files, summary=summary)
+    report.publish(out, "margin", table, title=title, intro=intro, summary=summary)
     progress(table.to_markdown(index=False, floatfmt=".3g"))
     progress(summary)
     return table

@@ -149,8 +149,7 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
         "`local=exact`."
     )
     summary = "fb / exact wall time: " + "; ".join(ratios) + "."
-    files = report.write_table(out, "nscd_local", table, title=title, intro=intro)
-    report.write_meta(out, "nscd_local", title=title, files=files, summary=summary)
+    report.publish(out, "nscd_local", table, title=title, intro=intro, summary=summary)
     return table
 
 

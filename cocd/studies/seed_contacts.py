@@ -110,14 +110,13 @@ def run(cfg: Settings, *, out: Path, progress: Any = print) -> pd.DataFrame:
         "at the start of Table 1's recorded steps. The last row of each case is the D "
         "interpolated to the seed's count (`seed_Nc_per_grain`)."
     )
-    files = report.write_table(out, "seed_contacts", table, title=title, intro=intro)
     found = table.dropna(subset=["seed_Nc_per_grain"])
     summary = "; ".join(
         f"{r.case}: D = {r.D_over_r:g} r gives {r.Nc_per_grain:.2f} per grain "
         f"(seed {r.seed_Nc_per_grain:.2f})"
         for r in found.itertuples()
     )
-    report.write_meta(out, "seed_contacts", title=title, files=files, summary=summary)
+    report.publish(out, "seed_contacts", table, title=title, intro=intro, summary=summary)
     progress(table.to_markdown(index=False, floatfmt=".3g"))
     progress(summary)
     return table

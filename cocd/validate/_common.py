@@ -294,10 +294,10 @@ def finish(
     figures: list[Path],
     progress: Callable[[str], Any],
 ) -> None:
-    files = report.write_table(out, name, table, title=title, intro=intro)
-    report.write_meta(out, name, title=title, files=[*files, *figures], summary=summary)
-    readme = report.write_readme(out, heading="Validation against the seed papers")
-    progress(f"{name}: wrote {', '.join(str(f) for f in [*files, *figures])}; {readme}")
+    files = report.publish(
+        out, name, table, title=title, intro=intro, summary=summary, figures=figures
+    )
+    progress(f"{name}: wrote {', '.join(str(f) for f in files)}")
 
 
 def fmt(x: float) -> str:
