@@ -227,14 +227,16 @@ class SolverInfo:
         """
         module, _, function = self.entry.partition(":")
         solve: SolveFunction = getattr(importlib.import_module(module), function)
-        if _takes_request(solve):
+        if _takes_request(solve):  # type: ignore[arg-type]  # functions are hashable
             return solve
         keywords: SolveFunction = functools.partial(_by_keywords, solve)
         return keywords
 
 
+@functools.lru_cache(maxsize=256)
 def _takes_request(solve: Callable[..., Solution]) -> bool:
-    """Whether ``solve`` takes the request as its second positional argument."""
+    """Whether ``solve`` takes the request as its second positional argument (read once
+    per function: a solve of a small problem should not pay for ``inspect``)."""
     try:
         parameters = inspect.signature(solve).parameters.values()
     except (TypeError, ValueError):  # no signature to read: assume the current form
