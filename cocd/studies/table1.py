@@ -216,14 +216,11 @@ def run(
 
     def prep_steps(c: _Case) -> int:
         """Steps of the trajectory to the recorded ones: none when they are cached."""
-        label, make, dt, t0, prep_tol, d_r, dim = (
-            c.label, c.make, c.dt, c.t_start, c.prep_tol, c.d_max_r, c.dim
-        )  # fmt: skip
-        scene = make()
-        d_max = d_r * float(scene.radii.mean())
-        path, _ = cache_path(label, scene, dt, t0, steps, trajectory[dim], TRAJECTORY_TOL,
-                             prep_tol, d_max)  # fmt: skip
-        return 0 if path.is_file() else round(t0 / dt) + steps
+        scene = c.make()
+        d_max = c.d_max_r * float(scene.radii.mean())
+        path, _ = cache_path(c.label, scene, c.dt, c.t_start, steps, trajectory[c.dim],
+                             TRAJECTORY_TOL, c.prep_tol, d_max)  # fmt: skip
+        return 0 if path.is_file() else round(c.t_start / c.dt) + steps
 
     estimate.announce(
         "table1",
@@ -279,60 +276,57 @@ def _run_case(
     Contacts are detected with the fixed threshold ``c.d_max_r`` mean radii. Each
     finished row goes to ``emit``; rows found in ``done`` are emitted as they are.
     """
-    case, label, make, dt, t_start, eps_list, scale, prep_tol, d_max_r = (
-        c.case, c.label, c.make, c.dt, c.t_start, c.eps_list, c.scale, c.prep_tol, c.d_max_r
-    )  # fmt: skip
     time_limit, row_budget = cfg.time_limit, cfg.row_budget
-    scene = make()
+    scene = c.make()
     dim, n = scene.dim, scene.n_free
-    d_max = d_max_r * float(scene.radii.mean())
+    d_max = c.d_max_r * float(scene.radii.mean())
     todo = []
     for name in names:
-        for eps in sorted(eps_list, reverse=True):
-            earlier = done.get(dim, n, d_max_r, name, eps)
+        for eps in sorted(c.eps_list, reverse=True):
+            earlier = done.get(dim, n, c.d_max_r, name, eps)
             if earlier is not None:
                 emit(earlier)
             else:
                 todo.append((name, eps))
     if not todo:
-        progress(f"{label}: every row read from the previous table")
+        progress(f"{c.label}: every row read from the previous table")
         return
     base = dict(
-        source=THIS_MACHINE, case=case, dim=dim, N=n, dt=dt, scale=scale, steps_ok=f"0/{steps}",
-        d_max_r=d_max_r,
+        source=THIS_MACHINE, case=c.case, dim=dim, N=n, dt=c.dt, scale=c.scale,
+        steps_ok=f"0/{steps}", d_max_r=c.d_max_r,
     )  # fmt: skip
     progress(
-        f"{label}: {n} grains, recording {steps} steps from t = {t_start:g} s "
+        f"{c.label}: {n} grains, recording {steps} steps from t = {c.t_start:g} s "
         f"with {trajectory} (tol {TRAJECTORY_TOL:g})"
     )
     try:
         seq = record_steps(
-            label,
-            make,
-            dt=dt,
-            t_start=t_start,
+            c.label,
+            c.make,
+            dt=c.dt,
+            t_start=c.t_start,
             n_steps=steps,
             solver=trajectory,
             tol=TRAJECTORY_TOL,
-            prep_tol=prep_tol,
+            prep_tol=c.prep_tol,
             progress=throttled(progress, 10.0, always=lambda line: "recording" in line),
             d_max=d_max,
         )
     except CocdError as exc:
         # No problems to compare on: every backend gets a row saying why.
         note = f"no step problems: trajectory ({trajectory}) failed: {str(exc)[:200]}"
-        progress(f"{label}: {note}")
+        progress(f"{c.label}: {note}")
         for name, eps in todo:
             emit({**base, "Nc": np.nan, "Nc_per_grain": np.nan, "tol": eps, "solver": name,
                   "start": "cold", "note": note})  # fmt: skip
         return
     nc = float(np.mean([p.nc for p in seq.problems]))
     built = "read from the cache" if seq.build_time == 0.0 else f"{seq.build_time:.0f} s"
-    progress(f"{label}: {len(seq.problems)} problems, mean Nc = {nc:.0f} ({built})")
+    progress(f"{c.label}: {len(seq.problems)} problems, mean Nc = {nc:.0f} ({built})")
     base["Nc"] = nc
     base["Nc_per_grain"] = nc / n
     # Kept alive while the worker uses it (the worker keys problems by identity).
-    warmup = warmup_problem(dim, dt)
+    warmup = warmup_problem(dim, c.dt)
     # Loosest eps first: a backend out of time there would be at a tighter eps too.
     timed_out_at: dict[str, float] = {}
     with Worker(memory_gb=memory_gb) as worker:
@@ -351,7 +345,7 @@ def _run_case(
                 # as part of the first step.
                 worker.solve_row(warmup, name, eps, time_limit=time_limit)
                 stats = _solver_rows(
-                    worker, seq, name, eps, time_limit, label, progress, row_budget
+                    worker, seq, name, eps, time_limit, c.label, progress, row_budget
                 )
                 row = {**base, "tol": eps, "solver": name, **stats}
                 if stats["first_status"] == "time_limit":
