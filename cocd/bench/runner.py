@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import solvers
+from cocd.bench import schema
 from cocd.bench.worker import Worker as ChildWorker
 from cocd.problem import ConicProblem
 from cocd.residuals import residuals
@@ -48,13 +49,7 @@ FloatArray = NDArray[np.float64]
 ROW_COLUMNS = [
     "solver",
     "formulation",
-    "status",
-    "iterations",
-    "setup_s",
-    "solve_s",
-    "wall_s",
-    "ccp_residual",
-    "coulomb_residual",
+    *schema.SOLVE_COLUMNS,
     "dynamics_residual",
     "u_error",
     "polished",

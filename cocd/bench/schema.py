@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-__all__ = ["COLUMNS", "RENAMED", "markdown", "upgrade"]
+__all__ = ["COLUMNS", "RENAMED", "SOLVE_COLUMNS", "markdown", "upgrade"]
 
 #: The shared columns, in the order a table lists them, with their meaning.
 COLUMNS: dict[str, str] = {
@@ -37,6 +37,17 @@ COLUMNS: dict[str, str] = {
     "u_error": "largest velocity difference from a reference answer (m/s)",
     "note": "what went wrong, or how the row was made",
 }
+
+#: What every row of one solve says, in this order.
+SOLVE_COLUMNS = [
+    "status",
+    "iterations",
+    "setup_s",
+    "solve_s",
+    "wall_s",
+    "ccp_residual",
+    "coulomb_residual",
+]
 
 #: Names used by earlier versions, and the names that replaced them.
 RENAMED: dict[str, str] = {

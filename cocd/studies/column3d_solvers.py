@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 import solvers as backends
-from cocd.bench import report, study
+from cocd.bench import report, schema, study
 from cocd.bench.runner import warmup_problem
 from cocd.bench.study import option
 from cocd.errors import CocdError
@@ -56,14 +56,8 @@ COLUMNS = [
     "options",
     "start",
     "tol",
-    "status",
-    "iterations",
-    "setup_s",
-    "solve_s",
-    "wall_s",
+    *schema.SOLVE_COLUMNS,
     "s_per_iteration",
-    "ccp_residual",
-    "coulomb_residual",
     "colours",
     "restarts",
     "backtracks",

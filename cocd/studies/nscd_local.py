@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 import solvers as backends
-from cocd.bench import report, study
+from cocd.bench import report, schema, study
 from cocd.bench.states import StepSequence, record_steps
 from cocd.bench.study import option
 from cocd.builders import box_3d, column_2d
@@ -48,13 +48,7 @@ COLUMNS = [
     "solver",
     "local",
     "tol",
-    "status",
-    "iterations",
-    "setup_s",
-    "solve_s",
-    "wall_s",
-    "ccp_residual",
-    "coulomb_residual",
+    *schema.SOLVE_COLUMNS,
     "newton",
     "fallback",
     "p_diff",
