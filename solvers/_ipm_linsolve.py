@@ -30,9 +30,9 @@ class _Pardiso:
         if not _PARDISO:
             solver = pypardiso.PyPardisoSolver(mtype=2)  # real SPD
             # Explicit parameters (iparm[0] = 1): with the defaults (iparm[0] = 0) MKL
-            # runs iterative refinement in every solve, which made each solve five times
-            # slower (9.2 ms against 1.9 ms on an 8308-disc K) for no accuracy gained:
-            # ipm refines against K itself when it has to.
+            # runs iterative refinement in every solve, which made each solve several
+            # times slower for no accuracy gained: ipm refines against K itself when it
+            # has to.
             ip = solver.iparm
             ip[:] = 0
             ip[0] = 1  # parameters given below

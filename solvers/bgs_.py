@@ -25,9 +25,7 @@ order and are faster. With ``colour=True`` the order is coloured greedily (no tw
 contacts of a colour share an unknown) and each colour is swept in parallel on
 numba's threads; the colouring depends only on the problem, so the answer does
 not depend on the thread count. On two cores the sequential sweep (the default)
-is the faster: on a step of the seed's 3D column at 12 293 spheres a coloured
-sweep (23 colours) took 66.6 ms on two threads against 28.4 ms for the sequential
-one (``results/column3d_solvers.md``).
+is the faster (``results/column3d_solvers.md``, ``cocd bench column3d-solvers``).
 
 ========================  =====================================================
 cocd                      BGS
