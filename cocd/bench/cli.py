@@ -56,9 +56,9 @@ def upgrade(
         bool, typer.Option("--dry-run", help="Say what would be renamed; write nothing.")
     ] = False,
 ) -> None:
-    """Rename the columns of results written by earlier versions to the current names.
+    """Rename old result columns to the current names (values unchanged).
 
-    Values are unchanged (warm's yes/no become start's warm/cold); each record
+    For results written by earlier versions. Values are unchanged (warm's yes/no become start's warm/cold); each record
     notes what was renamed, and the README is rebuilt.
     """
     from cocd.bench.report import write_readme
