@@ -56,7 +56,7 @@ def upgrade(
         bool, typer.Option("--dry-run", help="Say what would be renamed; write nothing.")
     ] = False,
 ) -> None:
-    """Rename old result columns to the current names (values unchanged).
+    """Rename old result columns to the current names.
 
     For results written by earlier versions. Values are unchanged (warm's yes/no become start's warm/cold); each record
     notes what was renamed, and the README is rebuilt.
