@@ -1,10 +1,12 @@
 """Numba kernels of the NSCD solver (:mod:`solvers.nscd_`): the local solvers of the
 Signorini-Coulomb law for one contact (the sweep is :mod:`solvers._nscd_kernels`).
 
-One contact ``a`` with its Delassus block ``W`` (``m x m``, symmetric positive definite)
-and the rest ``r = (W p + b)_a - W p_a`` (what the other contacts and the free motion
-give): find ``p`` with ``w = W p + r`` and De Saxcé's ``ŵ = w + (mu |w_T|, 0)`` such
-that ``K ∋ p ⊥ ŵ ∈ K*``, ``K = {|p_T| <= mu p_N}``. Its solutions are of three kinds:
+One contact ``a`` with its Delassus block ``W`` (``m x m``, positive definite; read
+entry by entry, so that a block that is not symmetric, as in a local problem whose
+``W`` is not, is solved exactly too) and the rest ``r = (W p + b)_a - W p_a`` (what
+the other contacts and the free motion give): find ``p`` with ``w = W p + r`` and De
+Saxcé's ``ŵ = w + (mu |w_T|, 0)`` such that ``K ∋ p ⊥ ŵ ∈ K*``, ``K = {|p_T| <= mu
+p_N}``. Its solutions are of three kinds:
 
 - separation: ``p = 0``, valid iff ``r_N >= 0``;
 - stick: ``w = 0``, ``p = -W^-1 r``, valid iff ``p`` is in ``K``;
@@ -100,7 +102,7 @@ def _local_2d(W, Winv, r, mu, out):
             continue
         qn = -rn / den
         qt = -s * mu * qn
-        wt = c * qn + d * qt + rt
+        wt = W[1, 0] * qn + d * qt + rt
         if s * wt >= 0.0:
             out[0] = qn
             out[1] = qt
@@ -156,7 +158,7 @@ def _polynomial_angle(W, r, mu, theta0):
     and checked; of the valid ones, the nearest ``theta0``."""
     rn, r1, r2 = r[0], r[1], r[2]
     # den f = A c^2 + B c s + C s^2 + D c + E s  (c = cos, s = sin)
-    A = mu * (rn * W[1, 2] - W[0, 1] * r2)
+    A = mu * (rn * W[2, 1] - W[0, 1] * r2)
     B = mu * (rn * (W[2, 2] - W[1, 1]) - (W[0, 2] * r2 - W[0, 1] * r1))
     C = mu * (W[0, 2] * r1 - rn * W[1, 2])
     D = W[0, 0] * r2 - rn * W[2, 0]

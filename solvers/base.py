@@ -192,6 +192,11 @@ class SolverInfo:
         The options the backend takes besides ``options``; :func:`solvers.solve`
         rejects any other with a message naming them. ``None`` for a backend that
         hands its options on to a library that checks them (its native settings).
+    local_entry : str, optional
+        ``"module:function"`` of the backend's local form, which solves a local
+        problem ``u = W r + q`` on ``W`` itself, symmetric or not
+        (:func:`solvers.local.solve_local`); ``None`` for a backend that solves
+        only the ConicProblem (of a factor ``H H' = W``, so a symmetric ``W``).
     """
 
     name: str
@@ -208,6 +213,7 @@ class SolverInfo:
     linear_cones_only: bool = False
     first_order: bool = False
     accepts: tuple[str, ...] | None = None
+    local_entry: str | None = None
 
     def unavailable_reason(self) -> str | None:
         """Why the backend cannot be used here, or ``None`` if it can."""

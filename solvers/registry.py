@@ -168,6 +168,7 @@ def _builtin() -> list[SolverInfo]:
             "ccp",
             "Projected Gauss-Seidel on the cone complementarity problem.",
             accepts=("omega", "check_every", "polish"),
+            local_entry="solvers.local:pgs_local",
             **_ITERATIVE,
         ),
         _own(
@@ -190,6 +191,7 @@ def _builtin() -> list[SolverInfo]:
             "Non-convex Coulomb law (NSCD): Gauss-Seidel with an exact local solver.",
             convex=False,
             accepts=("relax", "symmetric", "check_every", "local"),
+            local_entry="solvers.local:nscd_local",
             **_ITERATIVE,
         ),
         _own(
