@@ -1,10 +1,16 @@
 """Solve external problems (FCLib, Siconos) with any backend and judge the answer.
 
 A local or global problem (:mod:`cocd.io.problems`) is turned into a
-:class:`~cocd.problem.ConicProblem`, solved by a registered backend, and the
-answer is judged three ways: ``ccp_residual`` and ``coulomb_residual``
-(cocd's scaled measures, DESIGN.md section 2) on the ConicProblem, and
-``natural_map_error`` in the file's own terms, the number Siconos users quote.
+:class:`~cocd.problem.ConicProblem` and solved by a registered backend, except a
+local problem given to a backend with a local form (``nscd``, ``pgs``:
+:mod:`solvers.local`), which solves ``u = W r + q`` on ``W`` itself, as Siconos's
+NSGS does: no factor ``H H' = W`` is needed, so a ``W`` that is not symmetric is
+solved too (the Capsules files), and a small problem costs no conversion. The
+answer is judged three ways: ``ccp_residual`` and ``coulomb_residual`` (cocd's
+scaled measures, DESIGN.md section 2) on the ConicProblem, or for a local problem
+on its ``W`` (the same numbers when ``W`` is symmetric: the ConicProblem's Delassus
+operator is ``W``), and ``natural_map_error`` in the file's own terms, the number
+Siconos users quote.
 
 Convex backends answer the cone complementarity problem (COCD); they reach a
 small ``ccp_residual``, while the Coulomb law itself (``natural_map_error``)
@@ -15,16 +21,29 @@ contacts that stick or separate.
 from __future__ import annotations
 
 import time
+import weakref
 from typing import Any
 
 import numpy as np
 
 import solvers
+from cocd.cones import project_coulomb
 from cocd.errors import CocdError, ProblemError
-from cocd.io.problems import ExternalSolution, GlobalProblem, LocalProblem
+from cocd.io.problems import ExternalSolution, GlobalProblem, LocalProblem, natural_map_error
+from cocd.problem import ConicProblem
 from cocd.residuals import ccp_residual, coulomb_residual
+from solvers.local import LocalData, local_backends, solve_local
 
-__all__ = ["RECORD_KEYS", "describe", "judge", "not_applicable", "solve_external"]
+__all__ = [
+    "RECORD_KEYS",
+    "conic_of",
+    "describe",
+    "judge",
+    "local_data",
+    "local_residuals",
+    "not_applicable",
+    "solve_external",
+]
 
 ExternalProblem = LocalProblem | GlobalProblem
 
@@ -71,7 +90,8 @@ def describe(problem: ExternalProblem) -> dict[str, Any]:
         try:
             out["delassus_shift"] = problem.shift
         except ProblemError as exc:
-            out["solvable"] = f"no: {str(exc).split(': ', 1)[-1]}"
+            local = ", ".join(local_backends())
+            out["solvable"] = f"local forms only ({local}): {_reason(exc)}"
     if problem.title:
         out["title"] = problem.title
     if problem.description:
@@ -79,15 +99,102 @@ def describe(problem: ExternalProblem) -> dict[str, Any]:
     return out
 
 
-def judge(problem: ExternalProblem, r: np.ndarray) -> dict[str, float]:
-    """``ccp_residual``, ``coulomb_residual`` and ``natural_map_error`` of impulses ``r``."""
-    conic = problem.conic
+def judge(problem: ExternalProblem, r: np.ndarray, u: np.ndarray | None = None) -> dict[str, float]:
+    """``ccp_residual``, ``coulomb_residual`` and ``natural_map_error`` of impulses ``r``.
+
+    For a local problem the first two are computed on its ``W`` (:func:`local_residuals`),
+    with ``u = W r + q`` when given (else computed), for a global one on its ConicProblem.
+    """
     p = np.asarray(r, dtype=np.float64).reshape(problem.nc, problem.dim)
+    if isinstance(problem, LocalProblem):
+        u = problem.velocity(p) if u is None else np.asarray(u, dtype=np.float64)
+        ccp, coulomb = local_residuals(problem, p, u)
+        return {
+            "ccp_residual": ccp,
+            "coulomb_residual": coulomb,
+            "natural_map_error": natural_map_error(p, u, problem.mu, problem.dim, problem.q),
+        }
+    conic = problem.conic
     return {
         "ccp_residual": ccp_residual(conic, p),
         "coulomb_residual": coulomb_residual(conic, p),
         "natural_map_error": problem.natural_map_error(p),
     }
+
+
+def local_residuals(
+    problem: LocalProblem, r: np.ndarray, u: np.ndarray | None = None
+) -> tuple[float, float]:
+    """``ccp_residual`` and ``coulomb_residual`` (:mod:`cocd.residuals`) of impulses ``r``
+    on the local problem's own ``W``: ``w = u = W r + q``, ``rho_a = m / trace(W_aa)``
+    (0 for a block without a positive trace), normalised by ``|rho q|``.
+
+    When ``W`` is symmetric these are the residuals on :attr:`LocalProblem.conic`,
+    whose Delassus operator is ``W``; they need no factor of ``W``, so they judge a
+    ``W`` that is not symmetric too.
+    """
+    nc, m = problem.nc, problem.dim
+    if nc == 0:
+        return 0.0, 0.0
+    p = np.asarray(r, dtype=np.float64).reshape(nc, m)
+    w = problem.velocity(p) if u is None else np.asarray(u, dtype=np.float64)
+    w = w.reshape(nc, m)
+    trace = problem.W.diagonal().reshape(nc, m).sum(axis=1)
+    rho = np.where(trace > 0.0, m / np.where(trace > 0.0, trace, 1.0), 0.0)[:, None]
+    den = float(np.linalg.norm(rho * problem.q.reshape(nc, m)))
+    # Both natural maps in one projection: w, then De Saxcé's ŵ = w + (mu |w_T|, 0).
+    x = np.concatenate([p - rho * w, p - rho * w])
+    x[nc:, 0] -= rho[:, 0] * problem.mu * np.linalg.norm(w[:, 1:], axis=1)
+    F = np.tile(p, (2, 1)) - project_coulomb(x, np.concatenate([problem.mu, problem.mu]))
+    ccp, coulomb = float(np.linalg.norm(F[:nc])), float(np.linalg.norm(F[nc:]))
+    return _ratio(ccp, den), _ratio(coulomb, den)
+
+
+def _ratio(num: float, den: float) -> float:
+    """``num / den`` with ``0 / x = 0`` and ``x / 0 = inf`` (as :mod:`cocd.residuals`)."""
+    if num == 0.0:
+        return 0.0
+    return num / den if den > 0.0 else float("inf")
+
+
+#: The local form's data of each local problem, built once (block CSR of ``W``).
+_LOCAL_DATA: weakref.WeakKeyDictionary[LocalProblem, tuple[tuple[int, ...], LocalData]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def local_data(problem: LocalProblem) -> LocalData:
+    """The :class:`solvers.local.LocalData` of ``problem``, kept while the problem lives
+    (rebuilt when its ``W``, ``q`` or ``mu`` is replaced)."""
+    key = (id(problem.W), id(problem.q), id(problem.mu), problem.dim)
+    held = _LOCAL_DATA.get(problem)
+    if held is not None and held[0] == key:
+        return held[1]
+    data = LocalData.of(problem)
+    _ = data.arrays  # the block CSR of W, built here: set-up, not solve
+    _LOCAL_DATA[problem] = (key, data)
+    return data
+
+
+def conic_of(problem: ExternalProblem, solver: str) -> ConicProblem:
+    """``problem.conic`` for the backend ``solver``; a local problem without a factor
+    ``H H' = W`` (``W`` not symmetric) raises a one-line
+    :class:`~cocd.errors.ProblemError` that names the backend."""
+    try:
+        return problem.conic
+    except ProblemError as exc:
+        if not isinstance(problem, LocalProblem):
+            raise
+        local = " and ".join(local_backends()) or "no backend"
+        raise ProblemError(
+            f"{problem.name}: {solver} needs a factor H H' = W of a symmetric W, and "
+            f"{_reason(exc).split(', so ')[0]}; {local} solve it on W itself (their local form)"
+        ) from None
+
+
+def _reason(exc: ProblemError) -> str:
+    """The message of a problem's error without its leading ``where: ``."""
+    return " ".join(str(exc).split(": ", 1)[-1].split())
 
 
 def solve_external(
@@ -101,16 +208,32 @@ def solve_external(
 ) -> tuple[dict[str, Any], ExternalSolution | None]:
     """Solve ``problem`` with ``solver``; return its record and the answer in the file's terms.
 
-    ``setup_s`` is cocd's conversion (the factorisation of ``M`` or ``W``) plus
-    the backend's own set-up; ``solve_s`` the backend's solve time. An unknown
-    solver, a problem the backend does not take (dimension, cones) or a local
-    problem whose ``W`` is not symmetric raise a :class:`~cocd.errors.CocdError`.
+    A local problem goes to the backend's local form when it has one
+    (:attr:`solvers.SolverInfo.local_entry`; ``options`` may then hold ``criterion``,
+    :func:`solvers.local.solve_local`), every other case to the backend on
+    :attr:`~cocd.io.problems.LocalProblem.conic`. ``setup_s`` is cocd's conversion
+    (the factorisation of ``M`` or ``W``, or the block CSR of ``W`` for a local form,
+    each done once per problem) plus the backend's own set-up; ``solve_s`` the
+    backend's solve time. An unknown solver, a problem the backend does not take
+    (dimension, cones) or a local problem whose ``W`` is not symmetric given to a
+    backend without a local form raise a one-line :class:`~cocd.errors.CocdError`.
     """
-    solvers.get(solver)  # unknown names fail here, before the conversion
+    info = solvers.get(solver)  # unknown names fail here, before the conversion
     start = time.perf_counter()
-    conic = problem.conic  # may raise ProblemError (e.g. a non-symmetric W)
-    convert = time.perf_counter() - start
-    sol = solvers.solve(conic, solver, tol=tol, time_limit=time_limit, max_iter=max_iter, **options)
+    local = isinstance(problem, LocalProblem) and info.local_entry is not None
+    if local:
+        assert isinstance(problem, LocalProblem)
+        data = local_data(problem)
+        convert = time.perf_counter() - start
+        sol = solve_local(data, solver, tol, time_limit=time_limit, max_iter=max_iter, **options)
+        note = "local form"
+    else:
+        conic = conic_of(problem, solver)
+        convert = time.perf_counter() - start
+        sol = solvers.solve(
+            conic, solver, tol=tol, time_limit=time_limit, max_iter=max_iter, **options
+        )
+        note = str(sol.extras.get("approximation", ""))
     record: dict[str, Any] = {
         "problem": problem.name,
         "kind": problem.kind,
@@ -125,12 +248,18 @@ def solve_external(
         "ccp_residual": float("nan"),
         "coulomb_residual": float("nan"),
         "natural_map_error": float("nan"),
-        "note": str(sol.extras.get("approximation", "")),
+        "note": note,
     }
     answer = None
     if sol.p is not None and np.all(np.isfinite(sol.p)):
-        record.update(judge(problem, sol.p))
-        answer = problem.solution(sol.p)
+        if isinstance(problem, LocalProblem):
+            # Judged on u = W r + q computed here, not the backend's u.
+            r = np.asarray(sol.p, dtype=np.float64).reshape(-1).copy()
+            answer = ExternalSolution(r=r, u=problem.velocity(r))
+            record.update(judge(problem, r, answer.u))
+        else:
+            record.update(judge(problem, sol.p))
+            answer = problem.solution(sol.p)
     return record, answer
 
 
@@ -147,8 +276,10 @@ def not_applicable(problem: ExternalProblem, solver: str) -> str | None:
         return f"handles dimensions {info.dims} only"
     if info.linear_cones_only and problem.dim == 3 and "facets" not in options:
         return "linear cones only (use :facets=K for 3D)"
+    if isinstance(problem, LocalProblem) and info.local_entry is not None:
+        return None  # its local form takes any W
     try:
-        _ = problem.conic
+        _ = conic_of(problem, info.name)
     except ProblemError as exc:
-        return str(exc).split(": ", 1)[-1]
+        return _reason(exc)
     return None

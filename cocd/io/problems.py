@@ -30,7 +30,9 @@ answers them:
   (``delassus_shift``), whose Delassus operator is then exactly ``W``:
   residuals, the dual forms, Gauss-Seidel (``nscd``, ``pgs``) and ``apgd``
   work with ``W`` itself, while the primal forms solve ``W + delta I`` and
-  say so in ``extras["approximation"]``.
+  say so in ``extras["approximation"]``. A ``W`` that is not symmetric has no
+  such factor: the local forms of ``nscd`` and ``pgs`` (:mod:`solvers.local`)
+  solve it on ``W`` itself.
 
 :func:`natural_map_error` is the number Siconos users compare: the unscaled
 natural map of the Coulomb law, ``||r - P_K(r - û)||``, divided by
@@ -509,8 +511,8 @@ def _delassus_factor(W: sp.csc_matrix, where: str) -> tuple[sp.csr_matrix, float
     if asym > 1e-5 * scale:
         raise ProblemError(
             f"{where}: W is not symmetric (max |W - W'| = {asym:.3g}, "
-            f"{asym / scale:.2g} of its largest entry), so it is no Delassus operator "
-            "H M^-1 H', on which every cocd backend is built"
+            f"{asym / scale:.2g} of its largest entry), so it has no factor H H' = W "
+            "(no Delassus operator H M^-1 H')"
         )
     dmax = float(sym.diagonal().max())
     if not dmax > 0.0:
