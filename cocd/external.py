@@ -90,8 +90,8 @@ def describe(problem: ExternalProblem) -> dict[str, Any]:
         try:
             out["delassus_shift"] = problem.shift
         except ProblemError as exc:
-            local = ", ".join(local_backends())
-            out["solvable"] = f"local forms only ({local}): {_reason(exc)}"
+            names = ", ".join(local_backends())
+            out["solvable"] = f"local forms only ({names}): {_reason(exc)}"
     if problem.title:
         out["title"] = problem.title
     if problem.description:
@@ -220,9 +220,7 @@ def solve_external(
     """
     info = solvers.get(solver)  # unknown names fail here, before the conversion
     start = time.perf_counter()
-    local = isinstance(problem, LocalProblem) and info.local_entry is not None
-    if local:
-        assert isinstance(problem, LocalProblem)
+    if isinstance(problem, LocalProblem) and info.local_entry is not None:
         data = local_data(problem)
         convert = time.perf_counter() - start
         sol = solve_local(data, solver, tol, time_limit=time_limit, max_iter=max_iter, **options)
