@@ -5,7 +5,12 @@ Problems written by other tools (FCLib HDF5, Siconos text) are read
 :class:`~cocd.problem.ConicProblem` once (the conversion time is charged to
 every backend alike) and solved by each backend that takes them, in a
 :class:`~cocd.bench.runner.Worker` child (same clock, time limit, memory cap),
-after one warm-up solve per backend and dimension.
+after one warm-up solve per backend and dimension. A local problem given to a
+backend with a local form (``nscd``, ``pgs``: :mod:`solvers.local`) is solved
+on its ``W`` instead, as :func:`cocd.external.solve_external` does, in a child
+of its own (same limits); its conversion, the block CSR of ``W``, is its own
+``setup_s``. The Capsules files, whose ``W`` is not symmetric, have rows from
+those backends only; the others say ``n/a`` and why.
 
 Each answer is judged by the framework: ``ccp_residual`` (the convex problem
 every convex backend solves) and ``natural_map_error`` (Coulomb's law in the
@@ -19,6 +24,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,8 +40,10 @@ from cocd.bench.metrics import table_profile
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.study import option
+from cocd.bench.worker import Worker as ChildWorker
 from cocd.errors import CocdError, ProblemError
-from cocd.external import RECORD_KEYS
+from cocd.external import RECORD_KEYS, not_applicable
+from cocd.io.problems import GlobalProblem, LocalProblem
 
 __all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "run"]
 
@@ -61,6 +70,86 @@ def _usable(name: str) -> bool:
         return registry.resolve(name)[0].unavailable_reason() is None
     except CocdError:
         return False
+
+
+def _has_local_form(name: str) -> bool:
+    import solvers as registry
+
+    try:
+        return registry.resolve(name)[0].local_entry is not None
+    except CocdError:
+        return False
+
+
+_LOADED: dict[str, Any] = {}  # the local child's last problem, by path
+
+
+def _local_job(emit: Any, path: str, solver: str, tol: float, time_limit: float) -> dict[str, Any]:
+    """Local child: one row of the local form of ``solver`` on the local problem pickled
+    at ``path`` (kept loaded), judged as :func:`cocd.external.solve_external` judges."""
+    from cocd.external import judge, local_data
+    from solvers.local import solve_local
+
+    if _LOADED.get("path") != path:
+        _LOADED.clear()
+        with open(path, "rb") as f:
+            _LOADED.update(path=path, problem=pickle.load(f))
+    problem = _LOADED["problem"]
+    start = time.perf_counter()
+    data = local_data(problem)
+    convert = time.perf_counter() - start
+    sol = solve_local(data, solver, tol, time_limit=time_limit)
+    wall = time.perf_counter() - start
+    row: dict[str, Any] = {
+        "status": sol.status.value,
+        "iterations": sol.iterations,
+        "setup_s": convert + sol.setup_time,
+        "solve_s": sol.solve_time,
+        "wall_s": wall,
+        "note": "local form",
+    }
+    if np.all(np.isfinite(sol.p)):
+        row.update(judge(problem, sol.p))
+    return row
+
+
+class _LocalForms:
+    """Local forms run in a child of their own (:func:`_local_job`): each problem is
+    pickled once, and each backend warmed up once per dimension on a tiny problem."""
+
+    def __init__(self, memory_gb: float, folder: str) -> None:
+        self.child = ChildWorker(memory_gb)
+        self.folder = Path(folder)
+        self.paths: dict[int, str] = {}
+        self.held: list[LocalProblem] = []
+        self.warmed: set[tuple[str, int]] = set()
+
+    def _path(self, problem: LocalProblem) -> str:
+        if id(problem) not in self.paths:
+            path = self.folder / f"local-{len(self.paths)}.pkl"
+            with open(path, "wb") as f:
+                pickle.dump(problem, f, protocol=pickle.HIGHEST_PROTOCOL)
+            self.paths[id(problem)] = str(path)
+            self.held.append(problem)  # its id is not reused while it is held
+        return self.paths[id(problem)]
+
+    def solve_row(
+        self, problem: LocalProblem, solver: str, tol: float, time_limit: float
+    ) -> dict[str, Any]:
+        if (solver, problem.dim) not in self.warmed:
+            tiny = GlobalProblem.from_conic(warmup_problem(problem.dim)).local()
+            self.child.run(_local_job, self._path(tiny), solver, tol, 60.0, limit=300.0)
+            self.warmed.add((solver, problem.dim))
+        limit = 1.5 * time_limit + 30.0
+        outcome = self.child.run(
+            _local_job, self._path(problem), solver, tol, time_limit, limit=limit
+        )
+        if outcome.status == "done":
+            return dict(outcome.result)
+        return {"status": outcome.status, "note": outcome.note, "wall_s": outcome.elapsed}
+
+    def close(self) -> None:
+        self.child.close()
 
 
 @dataclass(frozen=True)
@@ -111,58 +200,95 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
     )
     rows: list[dict[str, Any]] = []
     warmed: set[tuple[str, int]] = set()
-    with Worker(memory_gb=memory) as worker:
-        for path in files:
-            base: dict[str, Any] = {c: np.nan for c in COLUMNS}
-            base.update(problem=path.name, note="")
-            problem = problems[path]
-            if isinstance(problem, CocdError):
-                rows.append({**base, "status": "unreadable", "note": str(problem)})
-                progress(f"{path.name}: unreadable: {problem}")
-                continue
-            base.update(kind=problem.kind, dim=problem.dim, nc=problem.nc, ndof=problem.ndof)
-            chosen = select_solvers(names, problem.dim)
-            start = time.perf_counter()
-            try:
-                conic = problem.conic
-            except ProblemError as exc:
-                reason = str(exc).split(": ", 1)[-1]
-                for solver in chosen:
-                    rows.append({**base, "solver": solver, "status": "n/a", "note": reason})
-                progress(f"{path.name}: no backend applies: {reason}")
-                continue
-            convert = time.perf_counter() - start
-            for solver in chosen:
-                if (solver, problem.dim) not in warmed:
-                    worker.solve_row(warmup_problem(problem.dim), solver, cfg.tol, time_limit=60.0)
-                    warmed.add((solver, problem.dim))
-                got = worker.solve_row(
-                    conic, solver, cfg.tol, time_limit=cfg.time_limit, keep_solution=True
-                )
-                row = {
-                    **base,
-                    "solver": solver,
-                    "status": got.get("status", "error"),
-                    "iterations": got.get("iterations", np.nan),
-                    "solve_s": got.get("solve_s", np.nan),
-                    "setup_s": convert + float(got.get("setup_s", np.nan)),
-                    "wall_s": convert + float(got.get("wall_s", np.nan)),
-                    "ccp_residual": got.get("ccp_residual", np.nan),
-                    "coulomb_residual": got.get("coulomb_residual", np.nan),
-                    "note": got.get("note", "") or "",
-                }
-                p = got.get("p")
-                if p is not None and np.all(np.isfinite(p)):
-                    row["natural_map_error"] = problem.natural_map_error(p)
-                rows.append(row)
-                progress(
-                    f"{path.name:44s} {solver:14s} {row['status']:10s} "
-                    f"ccp {row['ccp_residual']:.1e}  natural map "
-                    f"{row['natural_map_error']:.1e}  {row['wall_s']:.3f} s"
-                )
+    with (
+        Worker(memory_gb=memory) as worker,
+        tempfile.TemporaryDirectory(prefix="cocd-external-") as scratch,
+    ):
+        context = _Context(cfg, names, worker, _LocalForms(memory, scratch), warmed, progress)
+        try:
+            for path in files:
+                rows += _file_rows(path, problems[path], context)
+        finally:
+            context.local_forms.close()
     table = pd.DataFrame(rows, columns=COLUMNS)
     _write(table, out, tol=cfg.tol, time_limit=cfg.time_limit, coulomb_target=cfg.coulomb_target)
     return table
+
+
+@dataclass
+class _Context:
+    """What every file's rows share: the settings, the backends and their children."""
+
+    cfg: Settings
+    names: str | list[str] | None
+    worker: Worker
+    local_forms: _LocalForms
+    warmed: set[tuple[str, int]]
+    progress: Callable[[str], None]
+
+
+def _file_rows(path: Path, problem: Any, context: _Context) -> list[dict[str, Any]]:
+    """The rows of one file: one per backend chosen for its dimension."""
+    cfg, worker, progress = context.cfg, context.worker, context.progress
+    base: dict[str, Any] = {c: np.nan for c in COLUMNS}
+    base.update(problem=path.name, note="")
+    if isinstance(problem, CocdError):
+        progress(f"{path.name}: unreadable: {problem}")
+        return [{**base, "status": "unreadable", "note": str(problem)}]
+    base.update(kind=problem.kind, dim=problem.dim, nc=problem.nc, ndof=problem.ndof)
+    chosen = select_solvers(context.names, problem.dim)
+    local = {s for s in chosen if isinstance(problem, LocalProblem) and _has_local_form(s)}
+    start = time.perf_counter()
+    conic = None
+    try:
+        if len(local) < len(chosen):
+            conic = problem.conic
+    except ProblemError as exc:
+        if not local:
+            reason = str(exc).split(": ", 1)[-1]
+            progress(f"{path.name}: no backend applies: {reason}")
+            return [{**base, "solver": s, "status": "n/a", "note": reason} for s in chosen]
+    convert = time.perf_counter() - start
+    rows = []
+    for solver in chosen:
+        if solver in local:
+            got = context.local_forms.solve_row(problem, solver, cfg.tol, cfg.time_limit)
+            row = {**base, "solver": solver, **got}
+            row["status"] = row.get("status", "error")
+        elif conic is None:
+            reason = not_applicable(problem, solver) or "no ConicProblem"
+            rows.append({**base, "solver": solver, "status": "n/a", "note": reason})
+            progress(f"{path.name:44s} {solver:14s} n/a: {reason}")
+            continue
+        else:
+            if (solver, problem.dim) not in context.warmed:
+                worker.solve_row(warmup_problem(problem.dim), solver, cfg.tol, time_limit=60.0)
+                context.warmed.add((solver, problem.dim))
+            got = worker.solve_row(
+                conic, solver, cfg.tol, time_limit=cfg.time_limit, keep_solution=True
+            )
+            row = {
+                **base,
+                "solver": solver,
+                "status": got.get("status", "error"),
+                "iterations": got.get("iterations", np.nan),
+                "solve_s": got.get("solve_s", np.nan),
+                "setup_s": convert + float(got.get("setup_s", np.nan)),
+                "wall_s": convert + float(got.get("wall_s", np.nan)),
+                "ccp_residual": got.get("ccp_residual", np.nan),
+                "coulomb_residual": got.get("coulomb_residual", np.nan),
+                "note": got.get("note", "") or "",
+            }
+            p = got.get("p")
+            if p is not None and np.all(np.isfinite(p)):
+                row["natural_map_error"] = problem.natural_map_error(p)
+        rows.append(row)
+        progress(
+            f"{path.name:44s} {solver:14s} {row['status']:10s} "
+            f"ccp {row['ccp_residual']:.1e}  natural map "
+            f"{row['natural_map_error']:.1e}  {row['wall_s']:.3f} s"
+        )
+    return rows
 
 
 def _write(
@@ -179,8 +305,9 @@ def _write(
         "`setup_s` and `wall_s` include cocd's conversion of the file's problem "
         "(factorisation of M or W), the same for every backend on a problem. "
         "`ccp_residual`: the convex problem (DESIGN.md section 2); `natural_map_error`: "
-        "Coulomb's law, unscaled natural map / max(1, ||q||). `n/a`: no backend takes the "
-        "problem (the note says why)."
+        "Coulomb's law, unscaled natural map / max(1, ||q||). `n/a`: the backend does not "
+        "take the problem (the note says why). `local form` (note): the backend solved the "
+        "local problem on its W itself (solvers.local), its conversion in its own setup_s."
     )
     files = write_table(out, "external", table, title=title, intro=intro)
 
@@ -225,7 +352,9 @@ def _write(
     text = f"{n_problems} problem files. Problems solved and fraction fastest, per criterion:\n\n"
     if len(summary):
         text += summary.to_markdown(index=False, floatfmt=".2f")
-    skipped = table[table["status"].isin(["n/a", "unreadable"])].drop_duplicates("problem")
+    refused = table["status"].isin(["n/a", "unreadable"])
+    taken = set(table.loc[~refused, "problem"])
+    skipped = table[refused & ~table["problem"].isin(taken)].drop_duplicates("problem")
     if len(skipped):
         text += "\n\nNot solved by any backend: " + "; ".join(
             f"`{r.problem}` ({r.status}: {r.note})" for r in skipped.itertuples()
