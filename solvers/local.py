@@ -45,7 +45,8 @@ cocd                      local form
                           10 000 for ``pgs``)
 ``time_limit``            seconds, tested between runs of sweeps (the first
                           run is 16 sweeps, the others sized from the time a
-                          sweep takes, at most a tenth of a second each)
+                          sweep takes, at most a tenth of a second each;
+                          without a time limit, runs of 65 536 sweeps)
 ``warm_start``            impulses ``(nc, m)``, projected on their cones
 ``verbose``               one line per run of sweeps
 ``**options``             ``nscd``: ``relax``, ``symmetric``, ``local``; ``pgs``:
@@ -92,9 +93,11 @@ __all__ = ["CRITERIA", "LocalData", "nscd_local", "pgs_local", "solve_local"]
 
 #: Stopping criteria of the local form (module docstring).
 CRITERIA = ("residual", "natural_map")
-#: Sweeps of the first run when there is a time limit; a later run lasts at most this.
+#: Sweeps of the first run when there is a time limit; a later run lasts at most this,
+#: and has at most ``_MAX_RUN`` sweeps (the memory of their errors).
 _FIRST_RUN = 16
 _RUN_SECONDS = 0.1
+_MAX_RUN = 1 << 16
 _LOCAL = {"exact": LOCAL_EXACT, "fb": LOCAL_FB}
 
 
@@ -418,7 +421,7 @@ def _run(
         scale, den = a.ones, a.q_norm
     cap = default_cap if request.max_iter is None else int(request.max_iter)
     deadline = None if request.time_limit is None else start + float(request.time_limit)
-    history = np.empty(cap)
+    history: list[FloatArray] = []
     state = np.array([math.inf])
     counts = np.zeros(2, dtype=np.int64)
     setup_time = time.perf_counter() - start
@@ -427,13 +430,15 @@ def _run(
     done = 0
     converged = False
     status = Status.MAX_ITER
-    run = cap if deadline is None else min(cap, _FIRST_RUN)
+    run = min(cap, _MAX_RUN if deadline is None else _FIRST_RUN)
     while nc and done < cap:
+        errors = np.empty(run)
         n, converged = local_sweeps(
             a.indptr, a.indices, a.blocks, a.Wd, a.Wdinv, a.q, a.mu, a.rho, r, best, state,
-            history[done:], method.code, method.local, method.relax, method.omega,
+            errors, method.code, method.local, method.relax, method.omega,
             method.symmetric, done, run, request.tol, scale, method.coulomb, den, counts,
         )  # fmt: skip
+        history.append(errors[:n])
         done += n
         if request.verbose:
             print(f"{method.name} (local): sweep {done:6d}  {criterion} {state[0]:.3e}")
@@ -443,10 +448,12 @@ def _run(
         if deadline is not None and now >= deadline:
             status = Status.TIME_LIMIT
             break
-        if deadline is not None:
+        if deadline is None:
+            run = min(cap - done, _MAX_RUN)
+        else:
             per_sweep = (now - begin) / done
             seconds = min(deadline - now, _RUN_SECONDS)
-            run = max(1, min(cap - done, int(seconds / max(per_sweep, 1e-9))))
+            run = max(1, min(cap - done, _MAX_RUN, int(seconds / max(per_sweep, 1e-9))))
     if converged or nc == 0:
         status = Status.OPTIMAL
     elif not np.all(np.isfinite(r)):
@@ -457,7 +464,7 @@ def _run(
         "native_status": "non-finite iterate" if status == Status.ERROR else status.value,
         "criterion": criterion,
         "error": error,
-        "history": history[:done].copy(),
+        "history": np.concatenate(history) if history else np.zeros(0),
     }
     if method.local == LOCAL_FB:
         extras["local_newton"] = int(counts[0])
