@@ -88,6 +88,7 @@ from solvers._local_kernels import (
     local_velocity,
 )
 from solvers.base import FloatArray, IntArray, Request, Solution, Status
+from solvers.registry import registered, resolve
 
 __all__ = ["CRITERIA", "LocalData", "nscd_local", "pgs_local", "solve_local"]
 
@@ -256,8 +257,6 @@ def solve_local(
     :class:`~cocd.errors.ProblemError` (an unknown name
     :class:`~cocd.errors.SolverNotFound`).
     """
-    from solvers.registry import resolve
-
     info, name_options = resolve(solver)
     if info.local_entry is None:
         raise ProblemError(
@@ -292,8 +291,6 @@ def solve_local(
 
 def local_backends() -> list[str]:
     """The registered backends that have a local form."""
-    from solvers.registry import registered
-
     return sorted(n for n, info in registered().items() if info.local_entry is not None)
 
 
