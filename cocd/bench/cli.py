@@ -58,8 +58,8 @@ def upgrade(
 ) -> None:
     """Rename old result columns to the current names.
 
-    For results written by earlier versions. Values are unchanged (warm's yes/no become start's warm/cold); each record
-    notes what was renamed, and the README is rebuilt.
+    For results written by earlier versions. Values are unchanged (warm's yes/no become
+    start's warm/cold); each record notes what was renamed, and the README is rebuilt.
     """
     from cocd.bench.report import write_readme
     from cocd.bench.upgrade import upgrade_folder
