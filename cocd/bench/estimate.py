@@ -44,6 +44,8 @@ RATES: dict[str, float] = {
     "precision": 1.13,  # cocd bench precision --n2d 300 --n3d 150 --tols 1e-3,1e-6
     "hard": 0.94,  # cocd bench hard --steps 2
     "external": 0.92,  # cocd bench external <shared external problems> --time-limit 20
+    # Siconos's solves add a child Python each and some run to the time limit:
+    "peers": 16.5,  # cocd bench peers <Capsules-i125, spheres-in-a-box> --solvers nscd --tols 1e-8
     "scaling": 1.47,  # cocd bench scaling --n2d 300 --n3d 300 --packings column,jammed_box
     "timestep": 0.27,  # cocd validate timestep --n 100 --dts 1e-3,5e-4 --times 0.02,0.06
     "nscd": 0.25,  # cocd validate nscd --n 100 --times 1,2

@@ -52,6 +52,7 @@ ORDER = [
     "precision",
     "hard",
     "external",
+    "peers",
     "backends",
     "iterative",
     "collapse_2d_slope",
