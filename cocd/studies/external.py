@@ -45,7 +45,7 @@ from cocd.errors import CocdError, ProblemError
 from cocd.external import RECORD_KEYS, not_applicable
 from cocd.io.problems import GlobalProblem, LocalProblem
 
-__all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "run"]
+__all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "FileSolver", "run"]
 
 #: Suffixes of the files taken from the folder.
 SUFFIXES = (".hdf5", ".h5", ".dat")
@@ -199,92 +199,105 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
         progress=progress,
     )
     rows: list[dict[str, Any]] = []
-    warmed: set[tuple[str, int]] = set()
-    with (
-        Worker(memory_gb=memory) as worker,
-        tempfile.TemporaryDirectory(prefix="cocd-external-") as scratch,
-    ):
-        context = _Context(cfg, names, worker, _LocalForms(memory, scratch), warmed, progress)
-        try:
-            for path in files:
-                rows += _file_rows(path, problems[path], context)
-        finally:
-            context.local_forms.close()
+    with FileSolver(memory) as solver:
+        for path in files:
+            rows += _file_rows(path, problems[path], cfg, names, solver, progress)
     table = pd.DataFrame(rows, columns=COLUMNS)
     _write(table, out, tol=cfg.tol, time_limit=cfg.time_limit, coulomb_target=cfg.coulomb_target)
     return table
 
 
-@dataclass
-class _Context:
-    """What every file's rows share: the settings, the backends and their children."""
+class FileSolver:
+    """cocd's backends on external problems, each row judged in the file's terms.
 
-    cfg: Settings
-    names: str | list[str] | None
-    worker: Worker
-    local_forms: _LocalForms
-    warmed: set[tuple[str, int]]
-    progress: Callable[[str], None]
+    A local problem goes to a backend's local form when it has one (in a child of
+    its own, :class:`_LocalForms`); otherwise the problem's ConicProblem is built
+    once (its conversion charged to every backend's ``setup_s``) and solved in a
+    :class:`~cocd.bench.runner.Worker`. Each backend is warmed up once per
+    dimension. Used by ``cocd bench external`` and ``cocd bench peers``.
+    """
+
+    def __init__(self, memory_gb: float) -> None:
+        self._scratch = tempfile.TemporaryDirectory(prefix="cocd-external-")
+        self.worker = Worker(memory_gb=memory_gb)
+        self.local_forms = _LocalForms(memory_gb, self._scratch.name)
+        self.warmed: set[tuple[str, int]] = set()
+        self._conic: tuple[int, Any, float, str] | None = None  # id, conic, seconds, refusal
+
+    def __enter__(self) -> FileSolver:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        try:
+            self.local_forms.close()
+            self.worker.close()
+        finally:
+            self._scratch.cleanup()
+
+    def _conic_of(self, problem: Any) -> tuple[Any, float, str]:
+        """The problem's ConicProblem (None when it has none), its conversion seconds and
+        why not; kept for the last problem asked."""
+        if self._conic is None or self._conic[0] != id(problem):
+            start = time.perf_counter()
+            try:
+                conic, why = problem.conic, ""
+            except ProblemError as exc:
+                conic, why = None, str(exc).split(": ", 1)[-1]
+            self._conic = (id(problem), conic, time.perf_counter() - start, why)
+        return self._conic[1], self._conic[2], self._conic[3]
+
+    def row(self, problem: Any, solver: str, tol: float, time_limit: float) -> dict[str, Any]:
+        """One backend on one problem: status, iterations, setup_s, solve_s, wall_s,
+        ccp_residual, coulomb_residual, natural_map_error, note."""
+        if isinstance(problem, LocalProblem) and _has_local_form(solver):
+            got = self.local_forms.solve_row(problem, solver, tol, time_limit)
+            return {**got, "status": got.get("status", "error")}
+        conic, convert, why = self._conic_of(problem)
+        if conic is None:
+            return {"status": "n/a", "note": not_applicable(problem, solver) or why}
+        if (solver, problem.dim) not in self.warmed:
+            self.worker.solve_row(warmup_problem(problem.dim), solver, tol, time_limit=60.0)
+            self.warmed.add((solver, problem.dim))
+        got = self.worker.solve_row(conic, solver, tol, time_limit=time_limit, keep_solution=True)
+        row = {
+            "status": got.get("status", "error"),
+            "iterations": got.get("iterations", np.nan),
+            "solve_s": got.get("solve_s", np.nan),
+            "setup_s": convert + float(got.get("setup_s", np.nan)),
+            "wall_s": convert + float(got.get("wall_s", np.nan)),
+            "ccp_residual": got.get("ccp_residual", np.nan),
+            "coulomb_residual": got.get("coulomb_residual", np.nan),
+            "natural_map_error": np.nan,
+            "note": got.get("note", "") or "",
+        }
+        p = got.get("p")
+        if p is not None and np.all(np.isfinite(p)):
+            row["natural_map_error"] = problem.natural_map_error(p)
+        return row
 
 
-def _file_rows(path: Path, problem: Any, context: _Context) -> list[dict[str, Any]]:
+def _file_rows(
+    path: Path, problem: Any, cfg: Settings, names: Any, solver: FileSolver, progress: Any
+) -> list[dict[str, Any]]:
     """The rows of one file: one per backend chosen for its dimension."""
-    cfg, worker, progress = context.cfg, context.worker, context.progress
     base: dict[str, Any] = {c: np.nan for c in COLUMNS}
     base.update(problem=path.name, note="")
     if isinstance(problem, CocdError):
         progress(f"{path.name}: unreadable: {problem}")
         return [{**base, "status": "unreadable", "note": str(problem)}]
     base.update(kind=problem.kind, dim=problem.dim, nc=problem.nc, ndof=problem.ndof)
-    chosen = select_solvers(context.names, problem.dim)
-    local = {s for s in chosen if isinstance(problem, LocalProblem) and _has_local_form(s)}
-    start = time.perf_counter()
-    conic = None
-    try:
-        if len(local) < len(chosen):
-            conic = problem.conic
-    except ProblemError as exc:
-        if not local:
-            reason = str(exc).split(": ", 1)[-1]
-            progress(f"{path.name}: no backend applies: {reason}")
-            return [{**base, "solver": s, "status": "n/a", "note": reason} for s in chosen]
-    convert = time.perf_counter() - start
     rows = []
-    for solver in chosen:
-        if solver in local:
-            got = context.local_forms.solve_row(problem, solver, cfg.tol, cfg.time_limit)
-            row = {**base, "solver": solver, **got}
-            row["status"] = row.get("status", "error")
-        elif conic is None:
-            reason = not_applicable(problem, solver) or "no ConicProblem"
-            rows.append({**base, "solver": solver, "status": "n/a", "note": reason})
-            progress(f"{path.name:44s} {solver:14s} n/a: {reason}")
-            continue
-        else:
-            if (solver, problem.dim) not in context.warmed:
-                worker.solve_row(warmup_problem(problem.dim), solver, cfg.tol, time_limit=60.0)
-                context.warmed.add((solver, problem.dim))
-            got = worker.solve_row(
-                conic, solver, cfg.tol, time_limit=cfg.time_limit, keep_solution=True
-            )
-            row = {
-                **base,
-                "solver": solver,
-                "status": got.get("status", "error"),
-                "iterations": got.get("iterations", np.nan),
-                "solve_s": got.get("solve_s", np.nan),
-                "setup_s": convert + float(got.get("setup_s", np.nan)),
-                "wall_s": convert + float(got.get("wall_s", np.nan)),
-                "ccp_residual": got.get("ccp_residual", np.nan),
-                "coulomb_residual": got.get("coulomb_residual", np.nan),
-                "note": got.get("note", "") or "",
-            }
-            p = got.get("p")
-            if p is not None and np.all(np.isfinite(p)):
-                row["natural_map_error"] = problem.natural_map_error(p)
+    for name in select_solvers(names, problem.dim):
+        row = {**base, "solver": name, **solver.row(problem, name, cfg.tol, cfg.time_limit)}
         rows.append(row)
+        if row["status"] == "n/a":
+            progress(f"{path.name:44s} {name:14s} n/a: {row['note']}")
+            continue
         progress(
-            f"{path.name:44s} {solver:14s} {row['status']:10s} "
+            f"{path.name:44s} {name:14s} {row['status']:10s} "
             f"ccp {row['ccp_residual']:.1e}  natural map "
             f"{row['natural_map_error']:.1e}  {row['wall_s']:.3f} s"
         )

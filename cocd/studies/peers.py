@@ -1,8 +1,9 @@
 """``cocd bench peers DIR --peer siconos``: another project's solvers beside cocd's backends.
 
 Every problem file of a folder (FCLib HDF5, Siconos text) is solved by cocd's
-backends (as ``cocd bench external`` does: the file's problem converted once,
-each backend in a :class:`~cocd.bench.runner.Worker` child after a warm-up) and
+backends (as ``cocd bench external`` does, :class:`~cocd.studies.external.FileSolver`:
+a local problem on ``W`` itself by the backends with a local form, the others on
+the problem converted once, each in a child after a warm-up) and
 by the peer's solvers (:mod:`cocd.peers`: Siconos in a child process under its
 own Python), each at every tolerance of ``--tols``, with the same time limit.
 Every answer is judged by cocd with the same function,
@@ -26,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,11 +39,11 @@ import pandas as pd
 from cocd import peers
 from cocd.bench import estimate, select_solvers, solver_names, study
 from cocd.bench.results import Results
-from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
+from cocd.bench.runner import default_memory_gb
 from cocd.bench.study import option
-from cocd.errors import CocdError, ProblemError
+from cocd.errors import CocdError
 from cocd.studies._peers_report import write_report
-from cocd.studies.external import _files
+from cocd.studies.external import FileSolver, _files
 
 __all__ = ["COCD_SOLVERS", "COLUMNS", "STUDY", "Settings", "run"]
 
@@ -220,9 +220,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
         progress=progress,
     )
     memory = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
-    warmed: set[tuple[str, int]] = set()
     unreadable: list[dict[str, Any]] = []
-    with Worker(memory_gb=memory) as worker:
+    with FileSolver(memory) as solver:
         for f in files:
             if isinstance(f.problem, CocdError):
                 row = {"problem": f.path.name, "status": "unreadable", "note": str(f.problem)}
@@ -238,7 +237,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
                 "nc": f.problem.nc,
                 "note": "",
             }
-            _cocd_side(f, base, tols, cfg, table, worker, warmed, progress)
+            _cocd_side(f, base, tols, cfg, table, solver, progress)
             _peer_side(f, base, tols, cfg, table, peer, side, memory, progress)
     frame = table.frame()
     if unreadable:
@@ -269,50 +268,17 @@ def _cocd_side(
     tols: list[float],
     cfg: Settings,
     table: Results,
-    worker: Worker,
-    warmed: set[tuple[str, int]],
+    solver: FileSolver,
     progress: Callable[[str], None],
 ) -> None:
-    todo = [(s, t) for s in f.cocd for t in tols if not table.has(f.path.name, s, t)]
-    if not todo:
-        return
-    problem = f.problem
-    start = time.perf_counter()
-    try:
-        conic = problem.conic
-    except ProblemError as exc:
-        why = str(exc).split(": ", 1)[-1]
-        for solver, tol in todo:
-            table.add(
-                {**base, "side": "cocd", "solver": solver, "tol": tol, "status": "n/a", "note": why}
-            )
-        progress(f"{f.path.name}: no cocd backend applies: {why}")
-        return
-    convert = time.perf_counter() - start
-    for solver, tol in todo:
-        if (solver, problem.dim) not in warmed:
-            worker.solve_row(warmup_problem(problem.dim), solver, tol, time_limit=60.0)
-            warmed.add((solver, problem.dim))
-        got = worker.solve_row(conic, solver, tol, time_limit=cfg.time_limit, keep_solution=True)
-        row = {
-            **base,
-            "side": "cocd",
-            "solver": solver,
-            "tol": tol,
-            "status": got.get("status", "error"),
-            "iterations": got.get("iterations", np.nan),
-            "setup_s": convert + float(got.get("setup_s", np.nan)),
-            "solve_s": float(got.get("solve_s", np.nan)),
-            "wall_s": convert + float(got.get("wall_s", np.nan)),
-            "natural_map_error": np.nan,
-            "coulomb_residual": got.get("coulomb_residual", np.nan),
-            "note": got.get("note", "") or "",
-        }
-        p = got.get("p")
-        if p is not None and np.all(np.isfinite(p)):
-            row["natural_map_error"] = problem.natural_map_error(p)
+    """cocd's backends on the file, as ``cocd bench external`` runs them (local forms on
+    ``W`` itself, the others on the ConicProblem); each answer judged in the file's terms."""
+    for name, tol in [(s, t) for s in f.cocd for t in tols if not table.has(f.path.name, s, t)]:
+        got = solver.row(f.problem, name, tol, cfg.time_limit)
+        row = {**base, "side": "cocd", "solver": name, "tol": tol, **got}
         table.add(row)
-        _say(progress, row)
+        if row["status"] != "n/a":
+            _say(progress, {c: row.get(c, np.nan) for c in COLUMNS})
 
 
 def _peer_side(
