@@ -17,7 +17,16 @@ import numpy as np
 
 from cocd.errors import CocdError, ProblemError, SolverError, SolverNotFound
 from solvers.base import Request, Solution, SolverInfo, Status
-from solvers.registry import available, get, register, registered, resolve, unavailable
+from solvers.registry import (
+    REQUEST_FIELDS,
+    available,
+    get,
+    register,
+    registered,
+    requested,
+    resolve,
+    unavailable,
+)
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -77,21 +86,10 @@ def solve(
     -------
     Solution
     """
-    info, name_options = resolve(solver)
-    if "warm_start" in name_options:
-        raise ProblemError(f"solver {solver!r}: a warm start cannot be given in a solver name")
-    tol = name_options.pop("tol", tol)
-    max_iter = name_options.pop("max_iter", max_iter)
-    time_limit = name_options.pop("time_limit", time_limit)
-    verbose = bool(name_options.pop("verbose", verbose))
-    options = {**info.options, **options, **name_options}
-    if info.accepts is not None:
-        unknown = sorted(set(options) - set(info.options) - set(info.accepts))
-        if unknown:
-            raise ProblemError(
-                f"{info.name} has no option {unknown[0]!r}; its options are "
-                f"{', '.join(info.accepts) or 'none'}"
-            )
+    info, asked, options = requested(
+        solver, dict(tol=tol, max_iter=max_iter, time_limit=time_limit, verbose=verbose), options
+    )
+    tol, max_iter, time_limit, verbose = (asked[k] for k in REQUEST_FIELDS)
     if info.linear_cones_only and not problem.is_qp and "facets" not in options:
         raise ProblemError(
             f"solver {solver!r} takes linear cones only, and this 3D frictional problem has "

@@ -88,7 +88,7 @@ from solvers._local_kernels import (
     local_velocity,
 )
 from solvers.base import FloatArray, IntArray, Request, Solution, Status
-from solvers.registry import registered, resolve
+from solvers.registry import REQUEST_FIELDS, registered, requested
 
 __all__ = ["CRITERIA", "LocalData", "nscd_local", "pgs_local", "solve_local"]
 
@@ -257,7 +257,16 @@ def solve_local(
     :class:`~cocd.errors.ProblemError` (an unknown name
     :class:`~cocd.errors.SolverNotFound`).
     """
-    info, name_options = resolve(solver)
+    info, asked, options = requested(
+        solver,
+        dict(tol=tol, max_iter=max_iter, time_limit=time_limit, verbose=verbose,
+             criterion=criterion),
+        options,
+        "criterion",
+    )  # fmt: skip
+    tol, max_iter, time_limit, verbose, criterion = (
+        asked[k] for k in (*REQUEST_FIELDS, "criterion")
+    )
     if info.local_entry is None:
         raise ProblemError(
             f"solver {info.name!r} has no local form (it solves the ConicProblem of a "
@@ -265,21 +274,6 @@ def solve_local(
         )
     if not isinstance(data, LocalData):
         raise ProblemError(f"solve_local takes a LocalData, got {type(data).__name__}")
-    if "warm_start" in name_options:
-        raise ProblemError(f"solver {solver!r}: a warm start cannot be given in a solver name")
-    tol = name_options.pop("tol", tol)
-    max_iter = name_options.pop("max_iter", max_iter)
-    time_limit = name_options.pop("time_limit", time_limit)
-    verbose = bool(name_options.pop("verbose", verbose))
-    criterion = name_options.pop("criterion", criterion)
-    options = {**info.options, **options, **name_options}
-    if info.accepts is not None:
-        unknown = sorted(set(options) - set(info.options) - set(info.accepts))
-        if unknown:
-            raise ProblemError(
-                f"{info.name} has no option {unknown[0]!r}; its options are "
-                f"{', '.join(info.accepts) or 'none'}"
-            )
     if criterion not in CRITERIA:
         raise ProblemError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     request = _request(data, tol, max_iter, time_limit, warm_start, verbose)

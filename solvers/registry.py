@@ -18,7 +18,7 @@ import warnings
 from importlib.metadata import entry_points
 from typing import Any
 
-from cocd.errors import SolverNotFound
+from cocd.errors import ProblemError, SolverNotFound
 from solvers.base import SolverInfo
 
 __all__ = [
@@ -349,3 +349,37 @@ def _ensure_loaded() -> None:
                 RuntimeWarning,
                 stacklevel=2,
             )
+
+
+#: The request's fields that a solver name may carry (``"pgs:max_iter=3"``).
+REQUEST_FIELDS = ("tol", "max_iter", "time_limit", "verbose")
+
+
+def requested(
+    solver: str, request: dict[str, Any], options: dict[str, Any], *extra: str
+) -> tuple[SolverInfo, dict[str, Any], dict[str, Any]]:
+    """The backend for ``solver``, the request and the options it is given.
+
+    Options written in the name win over ``request`` (the fields of
+    :data:`REQUEST_FIELDS` and the names in ``extra``) and over ``options``; an
+    option the backend does not take, or a warm start in the name, is a one-line
+    :class:`~cocd.errors.ProblemError`.
+    """
+    info, name_options = resolve(solver)
+    if "warm_start" in name_options:
+        raise ProblemError(f"solver {solver!r}: a warm start cannot be given in a solver name")
+    request = dict(request)
+    for key in (*REQUEST_FIELDS, *extra):
+        if key in name_options:
+            request[key] = name_options.pop(key)
+    if "verbose" in request:
+        request["verbose"] = bool(request["verbose"])
+    merged = {**info.options, **options, **name_options}
+    if info.accepts is not None:
+        unknown = sorted(set(merged) - set(info.options) - set(info.accepts))
+        if unknown:
+            raise ProblemError(
+                f"{info.name} has no option {unknown[0]!r}; its options are "
+                f"{', '.join(info.accepts) or 'none'}"
+            )
+    return info, request, merged

@@ -86,6 +86,13 @@ def time_limit(default: float) -> Any:
     return option(default, "Seconds per solve before a backend is stopped.")
 
 
+def problem_folder() -> Any:
+    """The positional ``FOLDER`` of problem files (FCLib HDF5, Siconos text)."""
+    return option(
+        dataclasses.MISSING, "Folder of FCLib .hdf5 / Siconos .dat problem files.", argument=True
+    )
+
+
 def resume(table: str, help: str = "") -> Any:
     """The ``--resume`` option: keep the rows of ``OUT/<table>.csv`` and solve only the
     others (:class:`cocd.bench.results.Results`)."""

@@ -22,7 +22,6 @@ backend that solved them.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import pickle
 import tempfile
@@ -156,11 +155,7 @@ class _LocalForms:
 class Settings:
     """The options of ``cocd bench external``."""
 
-    folder: Path = option(
-        dataclasses.MISSING,
-        "Folder of FCLib .hdf5 / Siconos .dat problem files.",
-        argument=True,
-    )
+    folder: Path = study.problem_folder()
     solvers: str | None = study.solvers()
     tol: float = option(1e-8, "Tolerance asked of every solver.")
     coulomb_target: float = option(1e-6, "natural_map_error counted as solving Coulomb.")

@@ -25,7 +25,6 @@ both sides in time to target. Rows are kept in ``peers.csv`` as they finish and
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -84,11 +83,7 @@ NO_SOLVERS = ("none", "-")
 class Settings:
     """The options of ``cocd bench peers``."""
 
-    folder: Path = option(
-        dataclasses.MISSING,
-        "Folder of FCLib .hdf5 / Siconos .dat problem files.",
-        argument=True,
-    )
+    folder: Path = study.problem_folder()
     peer: str = option("siconos", "The project whose solvers run beside cocd's (siconos).")
     solvers: str | None = study.solvers(
         help="cocd backends, comma-separated, or `none` (default: "
