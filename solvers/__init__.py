@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from typing import TYPE_CHECKING, Any
@@ -99,16 +98,6 @@ def solve(
         raise ProblemError(
             f"solver {solver!r} handles dimensions {info.dims}, not a {problem.dim}D problem"
         )
-    try:
-        tol = float(tol)
-    except (TypeError, ValueError):
-        raise ProblemError(f"tol must be a finite number > 0, got {tol!r}") from None
-    if not (math.isfinite(tol) and tol > 0):
-        raise ProblemError(f"tol must be a finite number > 0, got {tol!r}")
-    if max_iter is not None and (not isinstance(max_iter, int) or max_iter < 1):
-        raise ProblemError(f"max_iter must be a positive integer, got {max_iter!r}")
-    if time_limit is not None and not (math.isfinite(time_limit) and time_limit > 0):
-        raise ProblemError(f"time_limit must be > 0 seconds, got {time_limit!r}")
     p0 = None
     if warm_start is not None:
         if not info.warm_start:

@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from solvers._apgd_kernels import _project3
 from solvers._nscd_local_kernels import local_solve, local_solve_fb
 
 __all__ = [
@@ -77,22 +78,6 @@ def _block_times(blocks, j, x, c, m):
 
 
 @njit(cache=True, inline="always")
-def _project(x0, x1, x2, mu, m):
-    """``(x0, x1, x2)`` projected on the Coulomb cone ``|x_T| <= mu x_N`` (``m == 1``:
-    on ``x_N >= 0``)."""
-    if m == 1:
-        return max(x0, 0.0), 0.0, 0.0
-    nt = np.sqrt(x1 * x1 + x2 * x2)
-    if nt <= mu * x0 and x0 >= 0.0:
-        return x0, x1, x2
-    if mu * nt <= -x0:
-        return 0.0, 0.0, 0.0
-    x0 = (x0 + mu * nt) / (1.0 + mu * mu)
-    f = mu * x0 / nt
-    return x0, x1 * f, x2 * f
-
-
-@njit(cache=True, inline="always")
 def _contact_error(r, a, u0, u1, u2, mu, s, desaxce, m):
     """``|r_a - P_K(r_a - s û)|^2`` of one contact (``û`` De Saxcé's ``u`` when ``desaxce``)."""
     r0 = r[a, 0]
@@ -101,7 +86,7 @@ def _contact_error(r, a, u0, u1, u2, mu, s, desaxce, m):
     x0 = r0 - s * u0
     if desaxce and m > 1:
         x0 -= s * mu * np.sqrt(u1 * u1 + u2 * u2)
-    x0, x1, x2 = _project(x0, r1 - s * u1, r2 - s * u2, mu, m)
+    x0, x1, x2 = _project3(x0, r1 - s * u1, r2 - s * u2, mu, m)
     d0, d1, d2 = r0 - x0, r1 - x1, r2 - x2
     return d0 * d0 + d1 * d1 + d2 * d2
 
@@ -115,7 +100,7 @@ def _pgs_step(r, a, w0, w1, w2, step, mu, m):
         return
     x1 = r[a, 1] - step * w1
     x2 = r[a, 2] - step * w2 if m > 2 else 0.0
-    x0, x1, x2 = _project(x0, x1, x2, mu, m)
+    x0, x1, x2 = _project3(x0, x1, x2, mu, m)
     r[a, 0] = x0
     r[a, 1] = x1
     if m > 2:

@@ -303,20 +303,7 @@ def _request(
     warm_start: ArrayLike | None,
     verbose: bool,
 ) -> Request:
-    try:
-        tol = float(tol)
-    except (TypeError, ValueError):
-        raise ProblemError(f"tol must be a finite number > 0, got {tol!r}") from None
-    if not (math.isfinite(tol) and tol > 0):
-        raise ProblemError(f"tol must be a finite number > 0, got {tol!r}")
-    if max_iter is not None and (
-        isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1
-    ):
-        raise ProblemError(f"max_iter must be a positive integer, got {max_iter!r}")
-    if time_limit is not None and not (
-        isinstance(time_limit, (int, float)) and math.isfinite(time_limit) and time_limit > 0
-    ):
-        raise ProblemError(f"time_limit must be > 0 seconds, got {time_limit!r}")
+    # tol, max_iter and time_limit were checked by solvers.registry.requested.
     p0 = None
     if warm_start is not None:
         p0 = np.asarray(warm_start, dtype=np.float64)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ast
 import functools
+import math
 import warnings
 from importlib.metadata import entry_points
 from typing import Any
@@ -374,6 +375,7 @@ def requested(
             request[key] = name_options.pop(key)
     if "verbose" in request:
         request["verbose"] = bool(request["verbose"])
+    _check_request(request)
     merged = {**info.options, **options, **name_options}
     if info.accepts is not None:
         unknown = sorted(set(merged) - set(info.options) - set(info.accepts))
@@ -383,3 +385,26 @@ def requested(
                 f"{', '.join(info.accepts) or 'none'}"
             )
     return info, request, merged
+
+
+def _check_request(request: dict[str, Any]) -> None:
+    """``tol`` a finite number > 0 (made a float), ``max_iter`` an integer >= 1 and
+    ``time_limit`` seconds > 0, when given; else a one-line ProblemError."""
+    if "tol" in request:
+        tol = request["tol"]
+        try:
+            request["tol"] = float(tol)
+        except (TypeError, ValueError):
+            raise ProblemError(f"tol must be a finite number > 0, got {tol!r}") from None
+        if not (math.isfinite(request["tol"]) and request["tol"] > 0):
+            raise ProblemError(f"tol must be a finite number > 0, got {tol!r}")
+    max_iter = request.get("max_iter")
+    if max_iter is not None and (
+        isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1
+    ):
+        raise ProblemError(f"max_iter must be a positive integer, got {max_iter!r}")
+    limit = request.get("time_limit")
+    if limit is not None and not (
+        isinstance(limit, (int, float)) and math.isfinite(limit) and limit > 0
+    ):
+        raise ProblemError(f"time_limit must be > 0 seconds, got {limit!r}")
