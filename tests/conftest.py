@@ -12,6 +12,8 @@ only; their accuracy is asserted by the tests that make them.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,15 @@ def run_study(study, out, **settings):
     lines: list[str] = []
     table = study(out=out, progress=lines.append, **settings)
     return out, table, lines
+
+
+#: The external problem files beside the project (``../shared/data/external``), optional.
+EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
+
+
+def external(name: str) -> Path:
+    """The external problem file ``name``; the test is skipped when it is not here."""
+    path = EXTERNAL / name
+    if not path.is_file():
+        pytest.skip(f"{path} is not here (the external problems are optional)")
+    return path

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import scipy.sparse as sp
+from conftest import external
 from typer.testing import CliRunner
 
 import solvers
@@ -20,19 +21,11 @@ from cocd.io.fclib import read_fclib_solution
 from cocd.io.problems import GlobalProblem, LocalProblem
 from cocd.stepper import Stepper
 
-EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
 GRANULAR_2D = [
     "fc2d_granularflowonwall_00667_00000.dat",
     "fc2d_granularflowonwall_02020_00213.dat",
 ]
 runner = CliRunner()
-
-
-def external(name: str) -> Path:
-    path = EXTERNAL / name
-    if not path.is_file():
-        pytest.skip(f"{path} is not here (the external problems are optional)")
-    return path
 
 
 def have(name: str) -> bool:

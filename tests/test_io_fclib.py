@@ -8,25 +8,18 @@ import h5py
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from conftest import external
 
 from cocd.errors import ProblemError, ProblemFileError
 from cocd.io import read_problem, write_problem
 from cocd.io.fclib import read_fclib, read_fclib_solution, write_fclib
 from cocd.io.problems import GlobalProblem, LocalProblem, natural_map_error
 
-EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
 HDF5_FILES = [
     "spheres-in-a-box-98-i10000-256-10.hdf5",
     "LMGC_100_PR_PerioBox-i00361-60-03000.hdf5",
     "Capsules-i125-1213.hdf5",
 ]
-
-
-def external(name: str) -> Path:
-    path = EXTERNAL / name
-    if not path.is_file():
-        pytest.skip(f"{path} is not here (the external problems are optional)")
-    return path
 
 
 def random_global(dim=3, nbodies=6, nc=8, seed=0, diagonal=True) -> GlobalProblem:

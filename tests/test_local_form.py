@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from conftest import external
 
 import solvers
 from cocd.errors import CocdError, ProblemError
@@ -17,15 +16,7 @@ from cocd.residuals import ccp_residual, coulomb_residual
 from solvers._nscd_local_kernels import local_solve
 from solvers.local import LocalData, local_backends, solve_local
 
-EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
 CAPSULES = ["Capsules-i100-1090.dat", "Capsules-i125-1213.hdf5"]
-
-
-def external(name: str) -> Path:
-    path = EXTERNAL / name
-    if not path.is_file():
-        pytest.skip(f"{path} is not here (the external problems are optional)")
-    return path
 
 
 def random_local(nc: int, dim: int, seed: int, skew: float = 0.0, mu: float = 0.3):

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import external
 from typer.testing import CliRunner
 
 from cocd.cli import app
@@ -14,7 +15,6 @@ from cocd.errors import CocdError
 from cocd.io import read_problem
 from cocd.peers import siconos
 
-EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
 SMALL = ["NESpheres_10_1.dat", "fc2d_granularflowonwall_00667_00000.dat"]
 runner = CliRunner()
 
@@ -22,13 +22,6 @@ needs_siconos = pytest.mark.skipif(
     siconos.peer_unavailable_reason() is not None,
     reason=str(siconos.peer_unavailable_reason()),
 )
-
-
-def external(name: str) -> Path:
-    path = EXTERNAL / name
-    if not path.is_file():
-        pytest.skip(f"{path} is not here (the external problems are optional)")
-    return path
 
 
 def small_folder(tmp_path: Path) -> Path:
