@@ -25,7 +25,6 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from cocd.bench import estimate, schema
@@ -35,7 +34,6 @@ __all__ = [
     "command_line",
     "machine_info",
     "machine_line",
-    "previous_table",
     "throttled",
     "write_meta",
     "write_readme",
@@ -183,38 +181,6 @@ def publish(
     files = [*write_table(out, name, table, title=title, intro=intro), *figures]
     write_meta(out, name, title=title, files=files, summary=summary)
     return files
-
-
-def previous_table(
-    path: Path,
-    columns: list[str],
-    *,
-    optional: frozenset[str] = frozenset(),
-    filled: frozenset[str] = frozenset(),
-) -> pd.DataFrame | None:
-    """An earlier table to resume from: None when ``path`` does not exist or lacks
-    only columns in ``optional`` (written by an older version, nothing to reuse).
-    Columns in ``filled`` that it lacks are added, empty (NaN).
-
-    Raises
-    ------
-    CocdError
-        When the file cannot be read or lacks other columns.
-    """
-    if not path.is_file():
-        return None
-    try:
-        old = pd.read_csv(path, keep_default_na=False, na_values=[""])
-    except (OSError, ValueError, pd.errors.ParserError) as exc:
-        raise CocdError(f"cannot resume from {path}: {exc}") from None
-    for column in sorted(filled - set(old.columns)):
-        old[column] = np.nan
-    missing = set(columns) - set(old.columns)
-    if missing and missing <= optional:
-        return None
-    if missing:
-        raise CocdError(f"cannot resume from {path}: columns {sorted(missing)} are missing")
-    return old
 
 
 def write_meta(
