@@ -231,12 +231,17 @@ class SolverInfo:
         max_iter, time_limit, verbose, **options)`` (one that takes a single
         positional argument), is given the request's fields as keywords.
         """
-        module, _, function = self.entry.partition(":")
-        solve: SolveFunction = getattr(importlib.import_module(module), function)
+        solve: SolveFunction = entry_function(self.entry)
         if _takes_request(solve):  # type: ignore[arg-type]  # functions are hashable
             return solve
         keywords: SolveFunction = functools.partial(_by_keywords, solve)
         return keywords
+
+
+def entry_function(entry: str) -> Any:
+    """The function an ``"module:function"`` entry names (the module imported on first use)."""
+    module, _, function = entry.partition(":")
+    return getattr(importlib.import_module(module), function)
 
 
 @functools.lru_cache(maxsize=256)

@@ -62,8 +62,6 @@ The answer is a :class:`~solvers.base.Solution` whose ``p`` is ``r`` ``(nc, m)``
 
 from __future__ import annotations
 
-import functools
-import importlib
 import math
 import time
 from collections.abc import Callable
@@ -87,7 +85,7 @@ from solvers._local_kernels import (
     local_sweeps,
     local_velocity,
 )
-from solvers.base import FloatArray, IntArray, Request, Solution, Status
+from solvers.base import FloatArray, IntArray, Request, Solution, Status, entry_function
 from solvers.registry import REQUEST_FIELDS, registered, requested
 
 __all__ = ["CRITERIA", "LocalData", "nscd_local", "pgs_local", "solve_local"]
@@ -277,7 +275,7 @@ def solve_local(
     if criterion not in CRITERIA:
         raise ProblemError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     request = _request(data, tol, max_iter, time_limit, warm_start, verbose)
-    fn = _load(info.local_entry)
+    fn: Callable[..., Solution] = entry_function(info.local_entry)
     solution = fn(data, request, criterion=criterion, **options)
     solution.solver = solver
     return solution
@@ -286,13 +284,6 @@ def solve_local(
 def local_backends() -> list[str]:
     """The registered backends that have a local form."""
     return sorted(n for n, info in registered().items() if info.local_entry is not None)
-
-
-@functools.cache
-def _load(entry: str) -> Callable[..., Solution]:
-    module, _, function = entry.partition(":")
-    fn: Callable[..., Solution] = getattr(importlib.import_module(module), function)
-    return fn
 
 
 def _request(
