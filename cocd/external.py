@@ -1,11 +1,13 @@
 """Solve external problems (FCLib, Siconos) with any backend and judge the answer.
 
 A local or global problem (:mod:`cocd.io.problems`) is turned into a
-:class:`~cocd.problem.ConicProblem` and solved by a registered backend, except a
-local problem given to a backend with a local form (``nscd``, ``pgs``:
-:mod:`solvers.local`), which solves ``u = W r + q`` on ``W`` itself, as Siconos's
-NSGS does: no factor ``H H' = W`` is needed, so a ``W`` that is not symmetric is
-solved too (the Capsules files), and a small problem costs no conversion. The
+:class:`~cocd.problem.ConicProblem` and solved by a registered backend, except when
+the backend has a local form (``nscd``, ``pgs``: :mod:`solvers.local`), which solves
+``u = W r + q`` on ``W`` itself, as Siconos's NSGS does: no factor ``H H' = W`` is
+needed, so a ``W`` that is not symmetric is solved too (the Capsules files), and a
+small problem costs no conversion. A global problem goes to a local form through its
+condensed problem ``W = H' M^-1 H``, ``q = w + H' M^-1 f`` (:func:`condense`, timed
+into ``setup_s``), and its answer is judged in the global terms. The
 answer is judged three ways: ``ccp_residual`` and ``coulomb_residual`` (cocd's
 scaled measures, DESIGN.md section 2) on the ConicProblem, or for a local problem
 on its ``W`` (the same numbers when ``W`` is symmetric: the ConicProblem's Delassus
@@ -36,6 +38,7 @@ from solvers.local import LocalData, local_backends, solve_local
 
 __all__ = [
     "RECORD_KEYS",
+    "condense",
     "conic_of",
     "describe",
     "judge",
@@ -176,6 +179,26 @@ def local_data(problem: LocalProblem) -> LocalData:
     return data
 
 
+def condense(problem: GlobalProblem) -> tuple[LocalProblem, float]:
+    """The condensed problem ``W = H' M^-1 H``, ``q = w + H' M^-1 f`` of ``problem`` and
+    the seconds it took, from the file's ``M`` and ``H`` (the mass factorisation
+    included, whatever ``problem`` has cached): the cost charged to every solve on the
+    condensed form, cocd's local forms and a peer's condensed solvers alike."""
+    start = time.perf_counter()
+    fresh = GlobalProblem(
+        M=problem.M,
+        H=problem.H,
+        f=problem.f,
+        w=problem.w,
+        mu=problem.mu,
+        dim=problem.dim,
+        title=problem.title,
+        source=problem.source,
+    )
+    local = fresh.local()
+    return local, time.perf_counter() - start
+
+
 def conic_of(problem: ExternalProblem, solver: str) -> ConicProblem:
     """``problem.conic`` for the backend ``solver``; a local problem without a factor
     ``H H' = W`` (``W`` not symmetric) raises a one-line
@@ -208,23 +231,28 @@ def solve_external(
 ) -> tuple[dict[str, Any], ExternalSolution | None]:
     """Solve ``problem`` with ``solver``; return its record and the answer in the file's terms.
 
-    A local problem goes to the backend's local form when it has one
-    (:attr:`solvers.SolverInfo.local_entry`; ``options`` may then hold ``criterion``,
-    :func:`solvers.local.solve_local`), every other case to the backend on
+    A problem goes to the backend's local form when it has one
+    (:attr:`solvers.SolverInfo.local_entry`; ``options`` may then hold ``criterion``
+    and the form's own options, :func:`solvers.local.solve_local`), a global problem
+    through :func:`condense`; every other case to the backend on
     :attr:`~cocd.io.problems.LocalProblem.conic`. ``setup_s`` is cocd's conversion
     (the factorisation of ``M`` or ``W``, or the block CSR of ``W`` for a local form,
-    each done once per problem) plus the backend's own set-up; ``solve_s`` the
+    each done once per problem; a global problem's condensation, every time) plus
+    the backend's own set-up; ``solve_s`` the
     backend's solve time. An unknown solver, a problem the backend does not take
     (dimension, cones) or a local problem whose ``W`` is not symmetric given to a
     backend without a local form raise a one-line :class:`~cocd.errors.CocdError`.
     """
     info = solvers.get(solver)  # unknown names fail here, before the conversion
     start = time.perf_counter()
-    if isinstance(problem, LocalProblem) and info.local_entry is not None:
-        data = local_data(problem)
+    if info.local_entry is not None:
+        if isinstance(problem, GlobalProblem):
+            local, note = condense(problem)[0], "local form (condensed)"
+        else:
+            local, note = problem, "local form"
+        data = local_data(local)
         convert = time.perf_counter() - start
         sol = solve_local(data, solver, tol, time_limit=time_limit, max_iter=max_iter, **options)
-        note = "local form"
     else:
         conic = conic_of(problem, solver)
         convert = time.perf_counter() - start
@@ -274,8 +302,8 @@ def not_applicable(problem: ExternalProblem, solver: str) -> str | None:
         return f"handles dimensions {info.dims} only"
     if info.linear_cones_only and problem.dim == 3 and "facets" not in options:
         return "linear cones only (use :facets=K for 3D)"
-    if isinstance(problem, LocalProblem) and info.local_entry is not None:
-        return None  # its local form takes any W
+    if info.local_entry is not None:
+        return None  # its local form takes any W, and a global problem condensed
     try:
         _ = conic_of(problem, info.name)
     except ProblemError as exc:

@@ -43,7 +43,9 @@ cocd                      NSCD
 ``**options``             ``relax`` (default 1.0: ``p_a <- relax p_local +
                           (1 - relax) p_a``), ``symmetric`` (default False),
                           ``check_every`` (default 4), ``local``: ``"exact"``
-                          (default) or ``"fb"`` (see below)
+                          (default) or ``"fb"`` (see below); ``newton``
+                          belongs to the local form (:mod:`solvers.local`):
+                          ``newton=True`` is refused here
 ========================  =====================================================
 
 ``local="fb"`` is the hybrid local solver of Gauss-Seidel codes: Newton on the
@@ -95,6 +97,11 @@ def nscd_solve_problem(problem: ConicProblem, request: Request, **options: Any) 
     check_every = options.get("check_every", 4)
     if not isinstance(check_every, int) or check_every < 1:
         raise ProblemError(f"nscd: check_every must be a positive integer, got {check_every!r}")
+    if options.get("newton", False):
+        raise ProblemError(
+            "nscd: newton=True is an option of its local form (solvers.local.solve_local, "
+            "cocd problem solve and bench external/peers on a local problem file)"
+        )
     local_name = options.get("local", "exact")
     if local_name not in _LOCAL:
         raise ProblemError(f"nscd: local must be one of {sorted(_LOCAL)}, got {local_name!r}")

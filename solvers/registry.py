@@ -191,7 +191,7 @@ def _builtin() -> list[SolverInfo]:
             "coulomb",
             "Non-convex Coulomb law (NSCD): Gauss-Seidel with an exact local solver.",
             convex=False,
-            accepts=("relax", "symmetric", "check_every", "local"),
+            accepts=("relax", "symmetric", "check_every", "local", "newton"),
             local_entry="solvers.local:nscd_local",
             **_ITERATIVE,
         ),

@@ -16,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import solvers
+from cocd.io.problems import LocalProblem
 from cocd.residuals import ccp_residual, coulomb_residual
 
 CONE_SLACK = 1e-6
@@ -113,3 +115,41 @@ def external(name: str) -> Path:
     if not path.is_file():
         pytest.skip(f"{path} is not here (the external problems are optional)")
     return path
+
+
+# -- local problems (tests of the local forms) ------------------------------------------
+def random_local(nc: int, dim: int, seed: int, skew: float = 0.0, mu: float = 0.3):
+    """``u = W r + q`` with ``W = B B' + I/2`` (positive definite), plus ``skew`` times a
+    skew-symmetric part of the same size; ``q`` of mixed signs (some contacts separate)."""
+    rng = np.random.default_rng(seed)
+    n = nc * dim
+    B = rng.normal(size=(n, n // 2)) / np.sqrt(n)
+    W = B @ B.T + 0.5 * np.eye(n)
+    if skew:
+        A = rng.normal(size=(n, n)) / np.sqrt(n)
+        W = W + skew * (A - A.T)
+    q = rng.normal(size=(nc, dim))
+    q[:, 0] -= 0.5  # most contacts closing
+    return LocalProblem(W=sp.csc_matrix(W), q=q.reshape(-1), mu=np.full(nc, mu), dim=dim)
+
+
+def assert_coulomb_law(r: np.ndarray, u: np.ndarray, mu: np.ndarray, tol: float) -> None:
+    """Coulomb's law contact by contact: ``r`` in its cone, De Saxcé's ``û`` in the dual
+    cone (``u_N >= 0``), ``r . û = 0``; a sticking contact has ``u = 0``, a sliding one
+    ``u_N = 0`` and ``r_T`` against ``u_T``."""
+    scale = max(1.0, float(np.abs(r).max()), float(np.abs(u).max()))
+    eps = tol * scale
+    for a in range(len(mu)):
+        rn, rt, un, ut = r[a, 0], r[a, 1:], u[a, 0], u[a, 1:]
+        nrt, nut = np.linalg.norm(rt), np.linalg.norm(ut)
+        assert rn >= -eps and nrt <= mu[a] * rn + eps, (a, r[a])
+        assert un >= -eps, (a, u[a])
+        assert abs(rn * (un + mu[a] * nut) + rt @ ut) <= eps * scale, (a, r[a], u[a])
+        if rn <= eps:
+            continue  # separated: r = 0, u_N >= 0
+        if nrt < mu[a] * rn - eps:  # sticking
+            assert np.abs(u[a]).max() <= eps, (a, r[a], u[a])
+        else:  # sliding: no normal velocity, friction against the slip
+            assert abs(un) <= eps, (a, u[a])
+            if nut > eps:
+                assert np.allclose(rt / nrt, -ut / nut, atol=1e-5), (a, r[a], u[a])

@@ -68,6 +68,8 @@ FloatArray = NDArray[np.float64]
 
 #: Largest connected block of a non-diagonal mass matrix factored densely.
 MAX_MASS_BLOCK = 6000
+#: A non-diagonal M of at most this many unknowns is factored whole, densely.
+DENSE_MASS = 512
 
 
 @dataclass
@@ -352,12 +354,28 @@ class GlobalProblem(_Described):
         return ExternalSolution(r=r, u=np.asarray(self.H.T @ v + self.w), v=v)
 
     def local(self) -> LocalProblem:
-        """The condensed problem ``W = H' M^-1 H``, ``q = w + H' M^-1 f``."""
-        c = self.conic
-        W = sp.csc_matrix(c.H @ sp.diags(1.0 / c.mass) @ c.H.T)
+        """The condensed problem ``W = H' M^-1 H``, ``q = w + H' M^-1 f`` (densely, by one
+        Cholesky factor, when M is not diagonal and has at most ``DENSE_MASS`` unknowns)."""
+        diag = self.M.diagonal()
+        if 0 < self.ndof <= DENSE_MASS and self.M.nnz > np.count_nonzero(diag):
+            M = self.M.toarray()
+            try:
+                factor = sla.cho_factor(0.5 * (M + M.T), lower=True)
+            except np.linalg.LinAlgError:
+                raise ProblemError(
+                    f"{self._where}: M is not positive definite (no Cholesky factor)"
+                ) from None
+            H = self.H.toarray()
+            X = sla.cho_solve(factor, np.column_stack([H, self.f]))
+            W = sp.csc_matrix(H.T @ X[:, :-1])
+            q = self.w + H.T @ X[:, -1]
+        else:
+            c = self.conic
+            W = sp.csc_matrix(c.H @ sp.diags(1.0 / c.mass) @ c.H.T)
+            q = np.asarray(c.b)
         return LocalProblem(
             W=W,
-            q=np.asarray(c.b),
+            q=q,
             mu=self.mu.copy(),
             dim=self.dim,
             title=self.title,
@@ -446,6 +464,18 @@ def _mass_factor(M: sp.csc_matrix, where: str) -> tuple[FloatArray | None, sp.cs
     asym = abs(M - M.T).max()
     if asym > 1e-10 * abs(M).max():
         raise ProblemError(f"{where}: M is not symmetric (max |M - M'| = {asym:.3g})")
+    n = M.shape[0]
+    if n <= DENSE_MASS:
+        # One dense factor: L^-1 keeps M's blocks (the entries between blocks are exact
+        # zeros), without a Python loop over them.
+        dense = M.toarray()
+        try:
+            L = np.linalg.cholesky(0.5 * (dense + dense.T))
+        except np.linalg.LinAlgError:
+            raise ProblemError(
+                f"{where}: M is not positive definite (no Cholesky factor)"
+            ) from None
+        return None, sp.csc_matrix(sla.solve_triangular(L, np.eye(n), lower=True))
     n_blocks, labels = connected_components(M, directed=False)
     order = np.argsort(labels, kind="stable")
     sizes = np.bincount(labels, minlength=n_blocks)
@@ -475,7 +505,6 @@ def _mass_factor(M: sp.csc_matrix, where: str) -> tuple[FloatArray | None, sp.cs
         rows.append(idx[ii])
         cols.append(idx[jj])
         vals.append(Linv[ii, jj])
-    n = M.shape[0]
     Linv_all = sp.csc_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
     )

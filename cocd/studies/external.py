@@ -5,10 +5,11 @@ Problems written by other tools (FCLib HDF5, Siconos text) are read
 :class:`~cocd.problem.ConicProblem` once (the conversion time is charged to
 every backend alike) and solved by each backend that takes them, in a
 :class:`~cocd.bench.runner.Worker` child (same clock, time limit, memory cap),
-after one warm-up solve per backend and dimension. A local problem given to a
-backend with a local form (``nscd``, ``pgs``: :mod:`solvers.local`) is solved
-on its ``W`` instead, as :func:`cocd.external.solve_external` does, in a child
-of its own (same limits); its conversion, the block CSR of ``W``, is its own
+after one warm-up solve per backend and dimension. A backend with a local form
+(``nscd``, ``pgs``: :mod:`solvers.local`) solves a local problem on its ``W``
+instead, and a global one on its condensed ``W = H' M^-1 H``, as
+:func:`cocd.external.solve_external` does, in a child of its own (same limits); its
+conversion (the block CSR of ``W``, and a global problem's condensation) is its own
 ``setup_s``. The Capsules files, whose ``W`` is not symmetric, have rows from
 those backends only; the others say ``n/a`` and why.
 
@@ -83,10 +84,13 @@ def _has_local_form(name: str) -> bool:
 _LOADED: dict[str, Any] = {}  # the local child's last problem, by path
 
 
-def _local_job(emit: Any, path: str, solver: str, tol: float, time_limit: float) -> dict[str, Any]:
-    """Local child: one row of the local form of ``solver`` on the local problem pickled
-    at ``path`` (kept loaded), judged as :func:`cocd.external.solve_external` judges."""
-    from cocd.external import judge, local_data
+def _local_job(
+    emit: Any, path: str, solver: str, tol: float, time_limit: float, options: dict[str, Any]
+) -> dict[str, Any]:
+    """Local child: one row of the local form of ``solver`` (with ``options``, e.g.
+    ``criterion``) on the problem pickled at ``path`` (kept loaded; a global problem
+    condensed at every solve), judged as :func:`cocd.external.solve_external` judges."""
+    from cocd.external import condense, judge, local_data
     from solvers.local import solve_local
 
     if _LOADED.get("path") != path:
@@ -95,9 +99,13 @@ def _local_job(emit: Any, path: str, solver: str, tol: float, time_limit: float)
             _LOADED.update(path=path, problem=pickle.load(f))
     problem = _LOADED["problem"]
     start = time.perf_counter()
-    data = local_data(problem)
+    if isinstance(problem, GlobalProblem):
+        local, note = condense(problem)[0], "local form (condensed)"
+    else:
+        local, note = problem, "local form"
+    data = local_data(local)
     convert = time.perf_counter() - start
-    sol = solve_local(data, solver, tol, time_limit=time_limit)
+    sol = solve_local(data, solver, tol, time_limit=time_limit, **options)
     wall = time.perf_counter() - start
     row: dict[str, Any] = {
         "status": sol.status.value,
@@ -105,7 +113,7 @@ def _local_job(emit: Any, path: str, solver: str, tol: float, time_limit: float)
         "setup_s": convert + sol.setup_time,
         "solve_s": sol.solve_time,
         "wall_s": wall,
-        "note": "local form",
+        "note": note,
     }
     if np.all(np.isfinite(sol.p)):
         row.update(judge(problem, sol.p))
@@ -120,10 +128,10 @@ class _LocalForms:
         self.child = ChildWorker(memory_gb)
         self.folder = Path(folder)
         self.paths: dict[int, str] = {}
-        self.held: list[LocalProblem] = []
+        self.held: list[LocalProblem | GlobalProblem] = []
         self.warmed: set[tuple[str, int]] = set()
 
-    def _path(self, problem: LocalProblem) -> str:
+    def _path(self, problem: LocalProblem | GlobalProblem) -> str:
         if id(problem) not in self.paths:
             path = self.folder / f"local-{len(self.paths)}.pkl"
             with open(path, "wb") as f:
@@ -133,15 +141,23 @@ class _LocalForms:
         return self.paths[id(problem)]
 
     def solve_row(
-        self, problem: LocalProblem, solver: str, tol: float, time_limit: float
+        self,
+        problem: LocalProblem | GlobalProblem,
+        solver: str,
+        tol: float,
+        time_limit: float,
+        options: dict[str, Any],
     ) -> dict[str, Any]:
         if (solver, problem.dim) not in self.warmed:
-            tiny = GlobalProblem.from_conic(warmup_problem(problem.dim)).local()
-            self.child.run(_local_job, self._path(tiny), solver, tol, 60.0, limit=300.0)
+            tiny = GlobalProblem.from_conic(warmup_problem(problem.dim))
+            for form in (tiny, tiny.local()):  # both paths compiled and imported
+                self.child.run(
+                    _local_job, self._path(form), solver, tol, 60.0, options, limit=300.0
+                )
             self.warmed.add((solver, problem.dim))
         limit = 1.5 * time_limit + 30.0
         outcome = self.child.run(
-            _local_job, self._path(problem), solver, tol, time_limit, limit=limit
+            _local_job, self._path(problem), solver, tol, time_limit, options, limit=limit
         )
         if outcome.status == "done":
             return dict(outcome.result)
@@ -205,8 +221,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
 class FileSolver:
     """cocd's backends on external problems, each row judged in the file's terms.
 
-    A local problem goes to a backend's local form when it has one (in a child of
-    its own, :class:`_LocalForms`); otherwise the problem's ConicProblem is built
+    A problem goes to a backend's local form when it has one (in a child of its own,
+    :class:`_LocalForms`; a global problem condensed); otherwise its ConicProblem is built
     once (its conversion charged to every backend's ``setup_s``) and solved in a
     :class:`~cocd.bench.runner.Worker`. Each backend is warmed up once per
     dimension. Used by ``cocd bench external`` and ``cocd bench peers``.
@@ -244,11 +260,21 @@ class FileSolver:
             self._conic = (id(problem), conic, time.perf_counter() - start, why)
         return self._conic[1], self._conic[2], self._conic[3]
 
-    def row(self, problem: Any, solver: str, tol: float, time_limit: float) -> dict[str, Any]:
+    def row(
+        self,
+        problem: Any,
+        solver: str,
+        tol: float,
+        time_limit: float,
+        local_options: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
         """One backend on one problem: status, iterations, setup_s, solve_s, wall_s,
-        ccp_residual, coulomb_residual, natural_map_error, note."""
-        if isinstance(problem, LocalProblem) and _has_local_form(solver):
-            got = self.local_forms.solve_row(problem, solver, tol, time_limit)
+        ccp_residual, coulomb_residual, natural_map_error, note. ``local_options`` go
+        to a local form (e.g. ``criterion``)."""
+        if _has_local_form(solver):
+            got = self.local_forms.solve_row(
+                problem, solver, tol, time_limit, dict(local_options or {})
+            )
             return {**got, "status": got.get("status", "error")}
         conic, convert, why = self._conic_of(problem)
         if conic is None:
