@@ -153,6 +153,24 @@ def test_bench_peers_without_siconos_runs_cocd_only(tmp_path, monkeypatch):
     assert first.endswith("running cocd's side only.") and "Traceback" not in result.output
     table = pd.read_csv(out / "peers.csv")
     assert table.side.tolist() == ["cocd"] and table.solver.tolist() == ["nscd"]
+    # The local form stops on the error both sides are judged by.
+    assert table.note.tolist() == ["local form"] and table.natural_map_error[0] <= 1e-6
     summary = pd.read_csv(out / "peers_summary.csv")
     assert summary.target.isna().all()
     assert "no siconos answer" in summary.note.iloc[0]
+
+
+def test_bench_peers_solves_a_global_problem_condensed_with_newton(tmp_path, monkeypatch):
+    name = "GFC3D_TwoRods1.dat"
+    folder = tmp_path / "problems"
+    folder.mkdir()
+    (folder / name).symlink_to(external(name))
+    monkeypatch.setenv(siconos.ENV, "/nonexistent")
+    out = tmp_path / "out"
+    args = ["bench", "peers", str(folder), "--solvers", "nscd:newton=True,clarabel"]
+    result = runner.invoke(app, [*args, "--tols", "1e-12", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    table = pd.read_csv(out / "peers.csv").set_index("solver")
+    assert table.loc["nscd:newton=True", "note"] == "local form (condensed)"
+    assert table.loc["nscd:newton=True", "natural_map_error"] <= 1e-12
+    assert table.loc["clarabel", "note"] != "local form (condensed)"

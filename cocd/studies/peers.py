@@ -2,8 +2,9 @@
 
 Every problem file of a folder (FCLib HDF5, Siconos text) is solved by cocd's
 backends (as ``cocd bench external`` does, :class:`~cocd.studies.external.FileSolver`:
-a local problem on ``W`` itself by the backends with a local form, the others on
-the problem converted once, each in a child after a warm-up) and
+the backends with a local form on ``W`` itself, a global problem's condensed, and
+stopping on the natural-map error, as the peer's solvers stop on theirs; the others
+on the problem converted once; each in a child after a warm-up) and
 by the peer's solvers (:mod:`cocd.peers`: Siconos in a child process under its
 own Python), each at every tolerance of ``--tols``, with the same time limit.
 Every answer is judged by cocd with the same function,
@@ -68,6 +69,7 @@ COLUMNS = [
 #: contacts stick or separate.
 COCD_SOLVERS = [
     "nscd",
+    "nscd:newton=True",
     "pgs",
     "apgd",
     "ipm",
@@ -77,6 +79,8 @@ COCD_SOLVERS = [
     "fp:clarabel-dual",
 ]
 NO_SOLVERS = ("none", "-")
+#: A local form stops on the error both sides are judged by, as the peer's solvers do.
+LOCAL_OPTIONS = {"criterion": "natural_map"}
 
 
 @dataclass(frozen=True)
@@ -97,7 +101,9 @@ class Settings:
         "default: the usual ones of each family).",
     )
     tols: tuple[float, ...] = option(
-        (1e-4, 1e-6, 1e-8, 1e-10), "Tolerances asked of every solver, both sides.", kind="floats"
+        (1e-4, 1e-6, 1e-8, 1e-10, 1e-12),
+        "Tolerances asked of every solver, both sides.",
+        kind="floats",
     )
     time_limit: float = study.time_limit(60.0)
     peer_max_iter: int = option(20_000, "Iterations allowed to a peer solver.")
@@ -269,7 +275,7 @@ def _cocd_side(
     """cocd's backends on the file, as ``cocd bench external`` runs them (local forms on
     ``W`` itself, the others on the ConicProblem); each answer judged in the file's terms."""
     for name, tol in [(s, t) for s in f.cocd for t in tols if not table.has(f.path.name, s, t)]:
-        got = solver.row(f.problem, name, tol, cfg.time_limit)
+        got = solver.row(f.problem, name, tol, cfg.time_limit, LOCAL_OPTIONS)
         row = {**base, "side": "cocd", "solver": name, "tol": tol, **got}
         table.add(row)
         if row["status"] != "n/a":
