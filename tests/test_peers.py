@@ -174,3 +174,27 @@ def test_bench_peers_solves_a_global_problem_condensed_with_newton(tmp_path, mon
     assert table.loc["nscd:newton=True", "note"] == "local form (condensed)"
     assert table.loc["nscd:newton=True", "natural_map_error"] <= 1e-12
     assert table.loc["clarabel", "note"] != "local form (condensed)"
+
+
+def test_findings_are_computed_from_the_table():
+    """The summary's sentences carry the numbers of the rows: two files, cocd 2 and 8
+    times slower to the peer's best (geometric mean 4), one of them worse than 3."""
+    from cocd.studies._peers_report import findings, summarize
+
+    rows = []
+    for problem, cocd_s, peer_s in (("A-i1-2.dat", 0.2, 0.1), ("B-i3-4.hdf5", 0.8, 0.1)):
+        common = {"problem": problem, "kind": "local", "dim": 3, "nc": 5, "tol": 1e-10}
+        rows.append({**common, "side": "cocd", "solver": "nscd", "setup_s": 0.0,
+                     "solve_s": cocd_s, "natural_map_error": 1e-13, "status": "optimal"})
+        rows.append({**common, "side": "siconos", "solver": "siconos:NSGS", "setup_s": 0.0,
+                     "solve_s": peer_s, "natural_map_error": 1e-11, "status": "optimal"})  # fmt: skip
+    table = pd.DataFrame(rows)
+    summary = summarize(table, peer="siconos", floor=1e-12)
+    assert summary.ratio.round(6).tolist() == [2.0, 8.0]
+    text = findings(table, summary, peer="siconos", floor=1e-12)
+    assert text[0].startswith("cocd reaches siconos's best error (at least 1e-12) on 2 of 2")
+    assert "geometric mean of cocd's time to it over siconos's is 4," in text[0]
+    assert "from 2 (A-i1) to 8 (B-i3); 1 file is worse than 3 times: B-i3 8." in text[0]
+    assert text[1] == "cocd's fastest solver to the target: `nscd` on 2."
+    assert "geometric mean of cocd's least time over siconos's is 4." in text[2]
+    assert text[3].endswith("A-i1 (1e-13 against 1e-11), B-i3 (1e-13 against 1e-11).")

@@ -11,6 +11,7 @@ performance profile of every solver of both sides in time to target
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +21,10 @@ import pandas as pd
 from cocd.bench import report
 from cocd.bench.metrics import performance_profile, shifted_geometric_mean
 
-__all__ = ["profile_costs", "summarize", "write_report"]
+__all__ = ["findings", "profile_costs", "summarize", "write_report"]
+
+#: The common error of :func:`findings`' second comparison.
+COMMON_ERROR = 1e-8
 
 
 def _seconds(rows: pd.DataFrame) -> pd.Series:
@@ -110,6 +114,86 @@ def summarize(table: pd.DataFrame, *, peer: str, floor: float) -> pd.DataFrame:
             record["note"] = f"no cocd answer ({statuses})"
         records.append(record)
     return pd.DataFrame(records)
+
+
+def _short(problem: str) -> str:
+    """A file's name without its suffixes and the counters after its iteration tag:
+    ``Capsules-i125-1213.hdf5`` gives ``Capsules-i125``."""
+    stem = re.sub(r"(\.(dat|hdf5|h5))+$", "", str(problem))
+    tagged = re.match(r"(.*?-i\d+)(-|$)", stem)
+    return tagged.group(1) if tagged else stem
+
+
+def findings(table: pd.DataFrame, summary: pd.DataFrame, *, peer: str, floor: float) -> list[str]:
+    """What the tables show, as sentences whose numbers are computed here from them."""
+    out: list[str] = []
+    if summary.empty:
+        return out
+    ratio = pd.to_numeric(summary["ratio"], errors="coerce")
+    ok = summary[np.isfinite(ratio) & (ratio > 0)].assign(ratio=ratio)
+    with_target = summary[np.isfinite(summary["target"].astype(float))]
+    if len(ok):
+        lo, hi = ok.loc[ok["ratio"].idxmin()], ok.loc[ok["ratio"].idxmax()]
+        mean = shifted_geometric_mean(ok["ratio"], shift=0.0)
+        worse = ok[ok["ratio"] > 3.0]
+        out.append(
+            f"cocd reaches {peer}'s best error (at least {floor:g}) on {len(ok)} of "
+            f"{len(with_target)} files; the geometric mean of cocd's time to it over "
+            f"{peer}'s is {mean:.3g}, from {lo['ratio']:.3g} ({_short(lo['problem'])}) to "
+            f"{hi['ratio']:.3g} ({_short(hi['problem'])}); "
+            + (
+                f"{len(worse)} {'file is' if len(worse) == 1 else 'files are'} worse than "
+                "3 times: "
+                + ", ".join(f"{_short(r.problem)} {r.ratio:.3g}" for r in worse.itertuples())
+                if len(worse)
+                else "no file is worse than 3 times"
+            )
+            + "."
+        )
+        fastest = ok["cocd_solver"].str.replace(r" \(tol .*\)$", "", regex=True)
+        counts = fastest.value_counts()
+        out.append(
+            "cocd's fastest solver to the target: "
+            + ", ".join(f"`{name}` on {n}" for name, n in counts.items())
+            + "."
+        )
+    missed = with_target[~with_target["problem"].isin(ok["problem"])]
+    for row in missed.itertuples():
+        out.append(
+            f"{_short(row.problem)}: not reached; target {float(row.target):.2g}, "
+            f"cocd's best {float(row.cocd_best_error):.2g}."
+        )
+    tab = _answered(table)
+    tab = tab.assign(seconds=_seconds(tab))
+    both, ratios = [], []
+    beyond = []
+    for problem, rows in tab.groupby("problem", sort=True):
+        mine, theirs = rows[rows["side"] == "cocd"], rows[rows["side"] != "cocd"]
+        best_mine = mine["natural_map_error"].min()
+        best_theirs = theirs["natural_map_error"].min()
+        if (
+            np.isfinite(best_mine)
+            and np.isfinite(best_theirs)
+            and best_theirs > max(floor, 10.0 * best_mine)
+        ):
+            beyond.append(f"{_short(problem)} ({best_mine:.2g} against {best_theirs:.2g})")
+        a = mine[mine["natural_map_error"] <= COMMON_ERROR]["seconds"].min()
+        b = theirs[theirs["natural_map_error"] <= COMMON_ERROR]["seconds"].min()
+        if np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0:
+            both.append(problem)
+            ratios.append(a / b)
+    if ratios:
+        out.append(
+            f"At a common error of {COMMON_ERROR:g} ({len(both)} files where both sides reach "
+            f"it), the geometric mean of cocd's least time over {peer}'s is "
+            f"{shifted_geometric_mean(pd.Series(ratios), shift=0.0):.3g}."
+        )
+    if beyond:
+        out.append(
+            f"cocd's best error is below {peer}'s best (above {floor:g}) by more than 10 "
+            "times on: " + ", ".join(beyond) + "."
+        )
+    return out
 
 
 def profile_costs(
@@ -227,6 +311,11 @@ def write_report(
         "faster). `not reached`: no cocd run reached the target (the note gives cocd's best).\n\n"
         + text
     )
+    shown_findings = findings(table, summary, peer=peer, floor=floor)
+    if shown_findings:
+        sum_intro += "\n\nComputed from the tables:\n\n" + "\n".join(
+            f"- {line}" for line in shown_findings
+        )
     files += report.write_table(
         out, "peers_summary", summary, title=f"{title}: time to target", intro=sum_intro
     )
