@@ -130,7 +130,9 @@ def findings(table: pd.DataFrame, summary: pd.DataFrame, *, peer: str, floor: fl
     if summary.empty:
         return out
     ratio = pd.to_numeric(summary["ratio"], errors="coerce")
-    ok = summary[np.isfinite(ratio) & (ratio > 0)].assign(ratio=ratio)
+    keep = np.isfinite(ratio) & (ratio > 0)
+    ok = summary[keep].copy()
+    ok["ratio"] = ratio[keep].to_numpy()  # (assign() would align an empty frame's index)
     with_target = summary[np.isfinite(summary["target"].astype(float))]
     if len(ok):
         lo, hi = ok.loc[ok["ratio"].idxmin()], ok.loc[ok["ratio"].idxmax()]
