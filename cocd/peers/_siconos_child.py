@@ -166,24 +166,36 @@ def solve(workdir: str) -> dict[str, Any]:
         problem.numberOfContacts = m // dim
         problem.M, problem.H = M, H
         problem.q, problem.b, problem.mu = f_vec, w_vec, mu
-    options = sn.SolverOptions(getattr(sn, request["constant"]))
-    options.dparam[sn.SICONOS_DPARAM_TOL] = float(request["tol"])
-    options.iparam[sn.SICONOS_IPARAM_MAX_ITER] = int(request["max_iter"])
-    r, u, v = np.zeros(m), np.zeros(m), np.zeros(ndof)
     driver = getattr(sn, request["driver"])
+
+    def call() -> tuple[Any, ...]:
+        """One driver call from r = u = v = 0 with fresh options: its time and answer."""
+        options = sn.SolverOptions(getattr(sn, request["constant"]))
+        options.dparam[sn.SICONOS_DPARAM_TOL] = float(request["tol"])
+        options.iparam[sn.SICONOS_IPARAM_MAX_ITER] = int(request["max_iter"])
+        r, u, v = np.zeros(m), np.zeros(m), np.zeros(ndof)
+        begin = time.perf_counter()
+        if request["form"] == "local":
+            info = driver(problem, r, u, options)
+        else:
+            info = driver(problem, r, u, v, options)
+        return time.perf_counter() - begin, info, options, r, u, v
+
     build_s = time.perf_counter() - start
     limit = request.get("time_limit")
     if limit:
         # Default action: an overrun ends this process with SIGALRM, in C code too.
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
         signal.setitimer(signal.ITIMER_REAL, float(limit))
-    start = time.perf_counter()
-    if request["form"] == "local":
-        info = driver(problem, r, u, options)
-    else:
-        info = driver(problem, r, u, v, options)
-    solve_s = time.perf_counter() - start
+    solve_s, info, options, r, u, v = call()
     signal.setitimer(signal.ITIMER_REAL, 0.0)
+    # A short call is made again (cocd's short solves are too) and the median kept.
+    times = [solve_s]
+    while solve_s < float(request.get("repeat_below", 0.0)) and len(times) < int(
+        request.get("repeats", 1)
+    ):
+        times.append(call()[0])
+    solve_s = float(np.median(times))
     arrays: dict[str, Any] = {"r": r, "u": u}
     if request["form"] == "global":
         arrays["v"] = v
@@ -193,6 +205,7 @@ def solve(workdir: str) -> dict[str, Any]:
         "iterations": int(options.iparam[sn.SICONOS_IPARAM_ITER_DONE]),
         "error": float(options.dparam[sn.SICONOS_DPARAM_RESIDU]),
         "solve_s": solve_s,
+        "runs": len(times),
         "build_s": build_s,
         "import_s": import_s,
     }

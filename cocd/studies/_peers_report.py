@@ -20,6 +20,7 @@ import pandas as pd
 
 from cocd.bench import report
 from cocd.bench.metrics import performance_profile, shifted_geometric_mean
+from cocd.bench.runner import SHORT_SOLVE_REPEATS, SHORT_SOLVE_S
 
 __all__ = ["findings", "profile_costs", "summarize", "write_report"]
 
@@ -279,6 +280,9 @@ def write_report(
         "backends with a local form (note `local form`) solve on W itself, a global "
         "problem's condensed W (its condensation in `setup_s`, as for the peer's condensed "
         f"solvers), and stop on the natural-map error, as {peer}'s solvers stop on theirs. "
+        f"A solve under {SHORT_SOLVE_S * 1e3:g} ms (cocd's local forms, the peer's driver "
+        f"calls) is run up to {SHORT_SOLVE_REPEATS} times from the same start and its "
+        "median time kept. "
         f"{peer}: "
         "`solve_s` is the driver call, `setup_s` cocd's condensation for a `(condensed)` "
         "solver (else 0), `wall_s` the whole child process (its Python, imports and the "
