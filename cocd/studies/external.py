@@ -57,8 +57,8 @@ __all__ = ["COLUMNS", "EXTERNAL_SOLVERS", "SUFFIXES", "FileSolver", "run"]
 
 #: Suffixes of the files taken from the folder.
 SUFFIXES = (".hdf5", ".h5", ".dat")
-#: The harness's set plus the non-convex fixed point and ECOS.
-EXTERNAL_SOLVERS = [*DEFAULT_SOLVERS, "ecos", "fp:clarabel-dual"]
+#: The harness's set plus nscd finished by Newton, the non-convex fixed point and ECOS.
+EXTERNAL_SOLVERS = [*DEFAULT_SOLVERS, "nscd:newton=True", "ecos", "fp:clarabel-dual"]
 COLUMNS = [*RECORD_KEYS[:-1], "wall_s", "note"]
 
 
