@@ -29,6 +29,28 @@ def _quiet(lines):
     return lines.append
 
 
+def test_an_ensemble_of_packings_gives_mean_and_spread(tmp_path):
+    """Two packings: the ensemble table holds their mean and sample spread, and the
+    summary's numbers are those of the ensemble table."""
+    case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel", seeds=2)
+    table = timestep.STUDY(out=tmp_path, progress=_quiet([]), **case)
+    assert sorted(table.seed.unique()) == [0, 1]
+    ensemble = pd.read_csv(tmp_path / "timestep_ensemble.csv")
+    row = ensemble[(ensemble.dt == 2e-3) & (ensemble.t == 0.02)].iloc[0]
+    errors = table[table.dt == 2e-3].profile_error
+    assert errors.iloc[0] != errors.iloc[1]  # two packings, two collapses
+    assert row.seeds == 2 and np.isclose(row.profile_error, errors.mean())
+    assert np.isclose(row.profile_error_sd, errors.std(ddof=1))
+    fronts = table[table.dt == 1e-3].front_m / table[table.dt == 1e-3].d_mean_m
+    ref = ensemble[(ensemble.dt == 1e-3) & (ensemble.t == 0.02)].iloc[0]
+    assert np.isclose(ref.front_d, fronts.mean())
+    summary = json.loads((tmp_path / "timestep.meta.json").read_text())["summary"]
+    g = "{:.3g}".format
+    assert f"dt = 0.002 s: {g(row.profile_error)} +- {g(row.profile_error_sd)}" in summary
+    assert f"front of dt = 0.001 s: {g(ref.front_d)} +- {g(ref.front_d_sd)} d" in summary
+    assert (tmp_path / "runs" / "timestep" / "n30_dt1e-03_s1" / "run.h5").exists()
+
+
 def test_smaller_time_steps_converge(tmp_path):
     lines: list[str] = []
     case = dict(n=30, dts=[2e-3, 1e-3, 5e-4], times=[0.02, 0.06], solver="clarabel")
@@ -43,7 +65,10 @@ def test_smaller_time_steps_converge(tmp_path):
     for name in ("timestep.csv", "timestep.md", "timestep_profiles.png", "timestep_error.png"):
         assert (tmp_path / name).stat().st_size > 0
     meta = json.loads((tmp_path / "timestep.meta.json").read_text())
-    assert "Profile error of dt = 0.002 s" in meta["summary"]
+    assert "profile error against dt = 0.0005 s (mean +- spread over the packings)" in (
+        meta["summary"]
+    )
+    assert "1 packing," in meta["summary"]
     readme = (tmp_path / "README.md").read_text()
     assert readme.startswith("# Validation against the seed papers")
     assert "Time step convergence (Fig. 2)" in readme
