@@ -118,6 +118,8 @@ def test_an_erodible_layer_lengthens_the_runout(tmp_path):
     assert runout[3.0] > 1.2 * runout[0.0]
     assert table.set_index("layer_d").runout_ratio[3.0] == pytest.approx(runout[3.0] / runout[0.0])
     assert table.n_layer.iloc[0] == 0 and table.n_layer.iloc[1] > 100
+    # R0 is the column's measured initial length, not a nominal 0.2 m.
+    assert np.allclose(table.runout_over_R0, table.runout_m / table.front0_m)
     assert not table.reached_end.any()
     assert (tmp_path / "erodible_front.png").stat().st_size > 0
 

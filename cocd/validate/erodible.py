@@ -117,14 +117,15 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     table = pd.DataFrame(rows)
     bare = table[table.layer_d == layers[0]].set_index("slope_deg").runout_m
     table["runout_ratio"] = table.runout_m / table.slope_deg.map(bare)
-    table["runout_over_R0"] = table.runout_m / 0.2
+    # R0: the column's measured initial length (its front at t = 0), not a nominal value.
+    table["runout_over_R0"] = table.runout_m / table.front0_m
 
     plt = base.pyplot()
     fig, axes = plt.subplots(1, len(slopes), figsize=(5.5 * len(slopes), 4), squeeze=False)
     for ax, slope in zip(axes[0], slopes, strict=True):
         for layer in layers:
             s = fronts[(slope, layer)]
-            ax.plot(s.times, (s.front - s.front[0]) / 0.2, label=f"layer {layer:g} d")
+            ax.plot(s.times, (s.front - s.front[0]) / s.front[0], label=f"layer {layer:g} d")
         ax.set_title(f"slope {slope:g} deg")
         ax.set_xlabel("t (s)")
         ax.grid(True, alpha=0.3)
@@ -158,7 +159,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "Layers in mean diameters d of the column's grains; `runout_m` = front travel "
         "r_f(t) - r_f(0) of the flow (surface_front: entrained layer grains count), r_f(t) "
         "averaged over the last tenth of the run; `front_m`: the front at the end; "
-        "`runout_ratio`: against the same slope with no layer; `n_layer`: grains in the layer; "
+        "`runout_ratio`: against the same slope with no layer; `runout_over_R0`: runout_m / "
+        "front0_m, R0 being the column's initial length as measured; `n_layer`: grains in "
+        "the layer; "
         "`reached_end`: the front came within two diameters of the bed's end (runout cut short)."
     )
     base.finish(

@@ -127,7 +127,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     plt = base.pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     for s, name in ((cocd_run, "COCD"), (nscd_run, "NSCD")):
-        ax.plot(s.times / period, (s.front - s.front[0]) / 0.2, label=name)
+        ax.plot(s.times / period, (s.front - s.front[0]) / s.front[0], label=name)
     ax.set_xlabel("t / sqrt(H0 / g)")
     ax.set_ylabel("(r_f - R0) / R0")
     ax.grid(True, alpha=0.3)
