@@ -43,6 +43,7 @@ __all__ = [
     "describe",
     "judge",
     "local_data",
+    "local_form_data",
     "local_residuals",
     "not_applicable",
     "solve_external",
@@ -199,6 +200,15 @@ def condense(problem: GlobalProblem) -> tuple[LocalProblem, float]:
     return local, time.perf_counter() - start
 
 
+def local_form_data(problem: ExternalProblem) -> tuple[LocalData, str]:
+    """What a backend's local form solves for ``problem``, and the record's note: a local
+    problem's own ``W`` (``local form``), a global problem's condensed one, condensed
+    afresh (``local form (condensed)``)."""
+    if isinstance(problem, GlobalProblem):
+        return local_data(condense(problem)[0]), "local form (condensed)"
+    return local_data(problem), "local form"
+
+
 def conic_of(problem: ExternalProblem, solver: str) -> ConicProblem:
     """``problem.conic`` for the backend ``solver``; a local problem without a factor
     ``H H' = W`` (``W`` not symmetric) raises a one-line
@@ -246,11 +256,7 @@ def solve_external(
     info = solvers.get(solver)  # unknown names fail here, before the conversion
     start = time.perf_counter()
     if info.local_entry is not None:
-        if isinstance(problem, GlobalProblem):
-            local, note = condense(problem)[0], "local form (condensed)"
-        else:
-            local, note = problem, "local form"
-        data = local_data(local)
+        data, note = local_form_data(problem)
         convert = time.perf_counter() - start
         sol = solve_local(data, solver, tol, time_limit=time_limit, max_iter=max_iter, **options)
     else:

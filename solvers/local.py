@@ -467,7 +467,7 @@ def _with_newton(
     )
     total = time.perf_counter() - start
     return Solution(
-        u=data.velocity(r),
+        u=sol.u if r is sol.p else data.velocity(r),  # the last sweeps' answer has its u
         p=np.asarray(r).reshape(a.q.shape),
         status=status,
         iterations=sweeps + steps,

@@ -98,7 +98,7 @@ def _local_job(
     """Local child: one row of the local form of ``solver`` (with ``options``, e.g.
     ``criterion``) on the problem pickled at ``path`` (kept loaded; a global problem
     condensed at every solve), judged as :func:`cocd.external.solve_external` judges."""
-    from cocd.external import condense, judge, local_data
+    from cocd.external import judge, local_form_data
     from solvers.local import solve_local
 
     if _LOADED.get("path") != path:
@@ -107,20 +107,18 @@ def _local_job(
             _LOADED.update(path=path, problem=pickle.load(f))
     problem = _LOADED["problem"]
 
-    def once() -> tuple[Any, float, float, float]:
+    def once() -> tuple[Any, str, float, float, float]:
         start = time.perf_counter()
-        local = condense(problem)[0] if isinstance(problem, GlobalProblem) else problem
-        data = local_data(local)
+        data, note = local_form_data(problem)
         convert = time.perf_counter() - start
         sol = solve_local(data, solver, tol, time_limit=time_limit, **options)
-        return sol, convert + sol.setup_time, sol.solve_time, time.perf_counter() - start
+        return sol, note, convert + sol.setup_time, sol.solve_time, time.perf_counter() - start
 
-    sol, setup, solve, wall = once()
+    sol, note, setup, solve, wall = once()
     runs = [(setup, solve, wall)]
     while wall < SHORT_SOLVE_S and len(runs) < SHORT_SOLVE_REPEATS:  # median of a short one
-        runs.append(once()[1:])
+        runs.append(once()[2:])
     setup, solve, wall = (float(x) for x in np.median(np.array(runs), axis=0))
-    note = "local form (condensed)" if isinstance(problem, GlobalProblem) else "local form"
     row: dict[str, Any] = {
         "status": sol.status.value,
         "iterations": sol.iterations,

@@ -43,7 +43,7 @@ from cocd.bench.runner import default_memory_gb
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.studies._peers_report import write_report
-from cocd.studies.external import FileSolver, _files
+from cocd.studies.external import FileSolver, _files, _usable
 
 __all__ = ["COCD_SOLVERS", "COLUMNS", "STUDY", "Settings", "run"]
 
@@ -127,15 +127,6 @@ def _check(cfg: Settings) -> list[float]:
     if cfg.memory_gb is not None and not cfg.memory_gb > 0:
         raise CocdError(f"--memory-gb must be > 0, got {cfg.memory_gb!r}")
     return list(dict.fromkeys(tols))
-
-
-def _usable(name: str) -> bool:
-    import solvers as registry
-
-    try:
-        return registry.resolve(name)[0].unavailable_reason() is None
-    except CocdError:
-        return False
 
 
 def _cocd_names(text: str | None) -> list[str]:
