@@ -73,7 +73,7 @@ from solvers._ipm_kernels import (
     max_step_soc,
     pair_positions,
 )
-from solvers._ipm_linsolve import LINEAR, LINSOLVES, default_linsolve
+from solvers._ipm_linsolve import LINEAR, LINSOLVES, default_linsolve, openblas_single
 from solvers.base import Request, Solution, Status
 from solvers.polish import polish_impulses
 
@@ -293,10 +293,15 @@ class ReducedSystem:
 # -- the solver ------------------------------------------------------------------------
 def ipm_solve_problem(problem: ConicProblem, request: Request, **options: Any) -> Solution:
     """Solve the COCD primal of ``problem`` (see the module's table)."""
-    tol, time_limit, verbose = request.tol, request.time_limit, request.verbose
     linsolve = str(options.get("linsolve") or default_linsolve())
     if linsolve not in LINEAR:
         raise ProblemError(f"ipm: linsolve must be one of {LINSOLVES}, got {linsolve!r}")
+    with openblas_single(linsolve):
+        return _solve(problem, request, linsolve, options)
+
+
+def _solve(problem: ConicProblem, request: Request, linsolve: str, options: Any) -> Solution:
+    tol, time_limit, verbose = request.tol, request.time_limit, request.verbose
     threads = int(options.get("threads", 2))
     polish = bool(options.get("polish", True))
     correctors = int(options.get("correctors", DEFAULT_CORRECTORS))
