@@ -30,7 +30,16 @@ __all__ = ["DERIVED_FILES", "RUN_FILE", "Progress", "RunSummary", "existing_run"
 RUN_FILE = "run.h5"
 #: Files that cocd writes beside a run file from it (statistics, default plots):
 #: replaced with the run (``force=True``), since they would describe the old one.
-DERIVED_FILES = ("stats.csv", "profiles.png", "front.png", "energy.png", "stats.png")
+#: What ``cocd validate`` keeps of a finished run (:mod:`cocd.validate._common`).
+MEASURED_FILES = ("measured.json", "measured.npz", "measured_stats.parquet")
+DERIVED_FILES = (
+    "stats.csv",
+    "profiles.png",
+    "front.png",
+    "energy.png",
+    "stats.png",
+    *MEASURED_FILES,
+)
 
 #: Keys of the resolved configuration that may change when a run is resumed: the end,
 #: and the iteration cap (a step that hit the cap failed and was not written, so a run

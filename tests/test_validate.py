@@ -83,6 +83,34 @@ def test_smaller_time_steps_converge(tmp_path):
     pd.testing.assert_frame_equal(table.drop(columns="compute_s"), table2.drop(columns="compute_s"))
 
 
+def test_a_case_is_rebuilt_from_its_kept_measurements_without_run_files(tmp_path):
+    """A finished run keeps its measurements beside the run file; with the run files
+    gone the case is rebuilt from them, same table, no step taken; another tolerance
+    or other profile times are not answered from them."""
+    case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel")
+    table = timestep.STUDY(out=tmp_path, progress=_quiet([]), **case)
+    runs = sorted((tmp_path / "runs" / "timestep").iterdir())
+    assert len(runs) == 2
+    for folder in runs:
+        assert {"measured.json", "measured.npz", "measured_stats.parquet"} <= {
+            f.name for f in folder.iterdir()
+        }
+        (folder / "run.h5").unlink()
+    again: list[str] = []
+    table2 = timestep.STUDY(out=tmp_path, progress=again.append, **case)
+    assert not any("step " in line for line in again)
+    assert not any((folder / "run.h5").exists() for folder in runs)
+    pd.testing.assert_frame_equal(table, table2)
+    # Other profile times: the kept measurements do not answer, the runs are made again.
+    lines: list[str] = []
+    timestep.STUDY(out=tmp_path, progress=lines.append, **{**case, "times": [0.01, 0.02]})
+    assert all((folder / "run.h5").exists() for folder in runs)
+    # A damaged record is not trusted: the run is measured again from its run file.
+    (runs[0] / "measured.json").write_text("{")
+    table3 = timestep.STUDY(out=tmp_path, progress=_quiet([]), **case)
+    pd.testing.assert_frame_equal(table.drop(columns="compute_s"), table3.drop(columns="compute_s"))
+
+
 def test_cocd_and_nscd_profiles_are_close(tmp_path):
     table = nscd.STUDY(
         n=30,

@@ -8,9 +8,12 @@ writes a table, figures and ``<case>.meta.json`` under ``<out>``, whose
 
 Every simulation is resumable: a case run again continues each run file
 from its last frame (a run killed half-way loses at most one frame
-interval), and a finished run is only measured again. ``fresh=True``
-starts them over. A failed step stops the case with a :class:`CocdError`
-naming it; the run files keep what was computed.
+interval), and a finished run is only measured again. What a finished run
+measured is kept beside its run file (:data:`cocd.runs.MEASURED_FILES`, a
+few hundred kilobytes, committed with the results), so a case is rebuilt
+from them without the run file. ``fresh=True`` starts them over. A failed
+step stops the case with a :class:`CocdError` naming it; the run files keep
+what was computed.
 
 Profiles are the free-surface height of the main connected mass above the
 bed's top (:func:`cocd.measure.mass_profile`), on bins one mean diameter
@@ -124,7 +127,7 @@ def collapse_series(
     """
     from cocd.config import RunConfig
     from cocd.errors import SolverError
-    from cocd.runs import RUN_FILE, Progress, run
+    from cocd.runs import MEASURED_FILES, RUN_FILE, Progress, run
 
     every = max(1, round(frame_dt / dt))
     if abs(every * dt - frame_dt) > 1e-9 * frame_dt:
@@ -157,6 +160,21 @@ def collapse_series(
                 f"it {rec.iterations}  ({p.elapsed:.0f} s this call)"
             )
 
+    key = {
+        "config": config.resolved(),
+        "measure": {
+            "profile_times": [float(t) for t in profile_times],
+            "bin_width": bin_width,
+            "x_max": x_max,
+        },
+    }
+    if how.fresh:
+        for name in MEASURED_FILES:
+            (folder / name).unlink(missing_ok=True)
+    else:
+        kept = read_measured(folder, key, label)
+        if kept is not None:
+            return kept
     try:
         summary = run(
             config,
@@ -173,7 +191,69 @@ def collapse_series(
         ) from None
     if summary.resumed_from_step and summary.steps > summary.resumed_from_step:
         progress(f"  {label}: resumed at step {summary.resumed_from_step}")
-    return measure_series(summary.path, label, profile_times, bin_width, x_max, dt)
+    series = measure_series(summary.path, label, profile_times, bin_width, x_max, dt)
+    write_measured(folder, key, series)
+    return series
+
+
+def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) -> None:
+    """Keep the measurements of a finished run in ``folder``
+    (:data:`cocd.runs.MEASURED_FILES`): small enough to commit with the results, so
+    that a case is measured again without the run file (every frame) or a rerun."""
+    import json
+
+    arrays = {
+        "times": series.times,
+        "front": series.front,
+        "profile_times": series.profile_times,
+        "profiles": series.profiles,
+        "x_edges": series.x_edges,
+    }
+    np.savez_compressed(folder / "measured.npz", **arrays)  # type: ignore[arg-type]
+    series.stats.to_parquet(folder / "measured_stats.parquet", index=False)
+    meta = {**key, "n_grains": series.n_grains, "d_mean": series.d_mean}
+    tmp = folder / "measured.json.tmp"  # written last: its presence means the rest is whole
+    tmp.write_text(json.dumps(meta, indent=1, default=str) + "\n")
+    tmp.replace(folder / "measured.json")
+
+
+def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeries | None:
+    """The kept measurements of the same finished run and measurement, else None."""
+    import json
+
+    from cocd.runs import _check_same
+
+    path = folder / "measured.json"
+    if not path.exists():
+        return None
+    try:
+        meta = json.loads(path.read_text())
+        _check_same(meta["config"], key["config"], path)
+    except (ValueError, KeyError, CocdError):
+        return None
+    old_run, new_run = meta["config"].get("run", {}), key["config"].get("run", {})
+    if old_run.get("until") != new_run.get("until") or old_run.get("steps") != new_run.get("steps"):
+        return None
+    if meta.get("measure") != json.loads(json.dumps(key["measure"], default=str)):
+        return None
+    try:
+        with np.load(folder / "measured.npz") as data:
+            arrays = {name: np.asarray(data[name]) for name in data.files}
+        stats = pd.read_parquet(folder / "measured_stats.parquet")
+    except (OSError, ValueError, KeyError):  # missing or damaged: measure the run again
+        return None
+    return CollapseSeries(
+        label=label,
+        path=folder / "measured.json",
+        times=arrays["times"],
+        front=arrays["front"],
+        profile_times=arrays["profile_times"],
+        profiles=arrays["profiles"],
+        x_edges=arrays["x_edges"],
+        stats=stats,
+        n_grains=int(meta["n_grains"]),
+        d_mean=float(meta["d_mean"]),
+    )
 
 
 def measure_series(
