@@ -96,6 +96,14 @@ def test_surface_front_over_an_erodible_layer():
         measure.surface_front(x, R, x_bins=bins, threshold=-1.0)
 
 
+def test_surface_front_moves_with_the_grains_not_by_whole_bins():
+    # The heap shifted by 0.3 of a bin: the front follows by 0.3 of a bin.
+    bins = np.arange(0.0, 40 * D + 1e-12, D)
+    for shift in (0.0, 0.3 * D, 0.45 * D):
+        heap = block(10, 4) + [shift, 0.0]
+        assert measure.surface_front(heap, R, x_bins=bins) == pytest.approx(10 * D + shift)
+
+
 def test_runout_and_relative_runout():
     assert measure.runout(0.2, 0.5) == pytest.approx(0.3)
     assert measure.relative_runout(0.2, 0.5) == pytest.approx(1.5)

@@ -153,10 +153,12 @@ def surface_front(
     bin with the bed's surface ``surface`` (e.g. the top of an erodible layer
     before the flow, or of the glued grains). A bin *carries the flow* when
     ``h - surface > threshold``. Starting at the bin where the flow is
-    thickest, the front is the upper edge of the last bin reached going
-    downstream while crossing at most ``max_gap_bins`` bins in a row that do
-    not carry it. On an erodible bed this is the front the eye sees (column
-    and entrained layer grains alike), and grains rolling ahead alone (a
+    thickest, the last bin reached going downstream while crossing at most
+    ``max_gap_bins`` bins in a row that do not carry it is the front's bin;
+    the front is the farthest reach ``x + r`` of the grains centred in it (so
+    it moves continuously, not by whole bins). On an erodible bed this is the
+    front the eye sees (column and entrained layer grains alike), and grains
+    rolling ahead alone (a
     thin, isolated bump) do not move it, which :func:`front_position` cannot
     ensure once the layer joins every grain into one mass.
 
@@ -166,7 +168,7 @@ def surface_front(
         Give the grains that can flow (a Scene's free grains by default).
     x_bins : (nx + 1,) array
         Bin edges along the flow direction (m); one mean diameter is a good width.
-        The front is known to one bin.
+        They decide which bin is the front's; the front itself is a grain's reach.
     surface : float or (nx,) array
         Height of the bed's surface per bin (m, absolute z), NaN for none (the
         bin then never carries the flow).
@@ -207,7 +209,11 @@ def surface_front(
             gap += 1
             if gap > max_gap_bins:
                 break
-    return float(edges[last + 1])
+    # Not the bin's edge: the farthest reach of the grains centred in that bin, so
+    # that the front moves continuously and not by whole bins.
+    xs, rs = x[sel, axis], r[sel]
+    inside = (xs >= edges[last]) & (xs < edges[last + 1])
+    return float(np.max(xs[inside] + rs[inside])) if inside.any() else float(edges[last + 1])
 
 
 @overload
