@@ -113,3 +113,36 @@ def test_cocd_bench_upgrade_of_no_folder_is_one_line(tmp_path):
     assert result.output.strip().splitlines() == [
         f"error: {tmp_path / 'none'} is not a folder of results"
     ]
+
+
+def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
+    """`cocd bench readme` fills a note's placeholders from the tables beside it: one
+    cell, an aggregate, a format; a placeholder without its row is a one-line error."""
+    table = pd.DataFrame(
+        {"t": [0.1, 0.2, 0.3], "case": ["a", "b", "b"], "error": [0.5, 0.25, 0.125]}
+    )
+    write_table(tmp_path, "demo", table, title="Demo")
+    write_meta(tmp_path, "demo", title="Demo", files=["demo.csv"], summary="")
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "demo.md").write_text(
+        "At t = 0.2 s the error is {{demo.error[t=0.2]}} ({{demo.error[t=0.2]:.1%}}); "
+        "case b ranges to {{max demo.error[case=b]}} over {{count demo.error[case=b]}} rows."
+    )
+    result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    text = (tmp_path / "README.md").read_text()
+    assert "At t = 0.2 s the error is 0.25 (25.0%); case b ranges to 0.25 over 2 rows." in text
+    # Each way of naming what the table does not hold is refused, naming the placeholder.
+    for bad, why in (
+        ("{{demo.error[t=0.4]}}", "0 rows match, not one"),
+        ("{{demo.error[case=b]}}", "2 rows match, not one"),
+        ("{{demo.speed[t=0.1]}}", "has no column 'speed'"),
+        ("{{other.error}}", "no table"),
+        ("{{demo.error[time=0.1]}}", "bad condition"),
+    ):
+        (notes / "demo.md").write_text(f"A number: {bad}.")
+        result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
+        assert result.exit_code != 0
+        assert why in result.output and bad in result.output
+        assert "Traceback" not in result.output

@@ -17,6 +17,7 @@ import json
 import math
 import os
 import platform
+import re
 import shlex
 import sys
 import time
@@ -32,6 +33,7 @@ from cocd.errors import CocdError
 
 __all__ = [
     "command_line",
+    "fill_note",
     "machine_info",
     "machine_line",
     "throttled",
@@ -274,10 +276,73 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
                 lines += [f"![{f}]({f})", ""]
         note = out / "notes" / f"{meta['name']}.md"
         if note.exists():
-            lines += [note.read_text().strip(), ""]
+            lines += [fill_note(note.read_text(), out, note.name).strip(), ""]
     readme = out / "README.md"
     readme.write_text("\n".join(lines).rstrip() + "\n")
     return readme
+
+
+_PLACEHOLDER = re.compile(
+    r"\{\{\s*(?:(?P<agg>min|max|mean|count)\s+)?(?P<table>[\w-]+)\.(?P<column>\w+)"
+    r"\s*(?:\[(?P<where>[^\]]*)\])?\s*(?::(?P<fmt>[^}]+?))?\s*\}\}"
+)
+
+
+def fill_note(text: str, out: Path, name: str = "note") -> str:
+    """A note with its numbers filled in from the tables beside it.
+
+    A placeholder ``{{table.column[key=value, ...]:format}}`` is the cell of
+    ``out/table.csv`` in ``column`` on the one row whose ``key`` columns hold those
+    values (numbers compared to 1e-9 relative); ``{{max table.column[...]}}`` (or
+    ``min``, ``mean``, ``count``) aggregates the rows that match. The format is
+    Python's (default ``.3g``). A placeholder that names no table, no column, no row
+    or several rows is an error naming it: a note cannot say a number its table
+    does not hold.
+    """
+    tables: dict[str, pd.DataFrame] = {}
+
+    def value(match: re.Match[str]) -> str:
+        where = f"{name}: {match.group(0)}"
+        table = match.group("table")
+        if table not in tables:
+            path = out / f"{table}.csv"
+            if not path.exists():
+                raise CocdError(f"{where}: no table {path}")
+            tables[table] = pd.read_csv(path)
+        frame = tables[table]
+        column = match.group("column")
+        if column not in frame.columns:
+            raise CocdError(f"{where}: {table}.csv has no column {column!r}")
+        keep = pd.Series(True, index=frame.index)
+        for cond in filter(None, (c.strip() for c in (match.group("where") or "").split(","))):
+            key, _, want = (part.strip() for part in cond.partition("="))
+            if key not in frame.columns or not want:
+                raise CocdError(f"{where}: bad condition {cond!r}")
+            keep &= _matches(frame[key], want)
+        cells = frame.loc[keep, column]
+        agg = match.group("agg")
+        if agg:
+            cell: Any = len(cells) if agg == "count" else getattr(cells, agg)()
+        elif len(cells) != 1:
+            raise CocdError(f"{where}: {len(cells)} rows match, not one")
+        else:
+            cell = cells.iloc[0]
+        fmt = match.group("fmt") or (".3g" if isinstance(cell, float) else "")
+        try:
+            return format(cell, fmt)
+        except (TypeError, ValueError):
+            raise CocdError(f"{where}: format {fmt!r} does not apply to {cell!r}") from None
+
+    return _PLACEHOLDER.sub(value, text)
+
+
+def _matches(column: pd.Series, want: str) -> pd.Series:
+    try:
+        number = float(want)
+    except ValueError:
+        return column.astype(str) == want
+    values = pd.to_numeric(column, errors="coerce")
+    return (values - number).abs() <= 1e-9 * max(abs(number), 1e-300)
 
 
 def throttled(

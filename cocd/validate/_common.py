@@ -54,6 +54,10 @@ COARSE = 4
 #: its runout.
 RUNOUT_WINDOW = 0.1
 
+#: Version of what :func:`measure_series` measures; kept measurements of another
+#: version are measured again from their run file.
+MEASURE_VERSION = 2
+
 #: Relative tolerance when a requested time is matched to a saved frame (in steps).
 _FRAME_MATCH = 0.5
 
@@ -161,6 +165,7 @@ def collapse_series(
             )
 
     key = {
+        "version": MEASURE_VERSION,
         "config": config.resolved(),
         "measure": {
             "profile_times": [float(t) for t in profile_times],
@@ -235,6 +240,8 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
     if old_run.get("until") != new_run.get("until") or old_run.get("steps") != new_run.get("steps"):
         return None
     if meta.get("measure") != json.loads(json.dumps(key["measure"], default=str)):
+        return None
+    if meta.get("version") != key["version"]:
         return None
     try:
         with np.load(folder / "measured.npz") as data:
@@ -329,6 +336,35 @@ def coarsen(h: ArrayLike, k: int) -> FloatArray:
     h = np.asarray(h, dtype=float)
     pad = (-h.size) % k
     return np.asarray(np.concatenate([h, np.zeros(pad)]).reshape(-1, k).mean(axis=1))
+
+
+def ensemble(table: pd.DataFrame, keys: Sequence[str], columns: Sequence[str]) -> pd.DataFrame:
+    """Mean and sample spread over the packings (rows sharing ``keys``): per group,
+    ``seeds`` (rows), and for each of ``columns`` its mean and ``<column>_sd`` (sample
+    standard deviation, NaN for one packing)."""
+    grouped = table.groupby(list(keys), sort=True)
+    out = grouped.size().rename("seeds").to_frame()
+    for column in columns:
+        out[column] = grouped[column].mean()
+        out[f"{column}_sd"] = grouped[column].std(ddof=1)
+    return out.reset_index()
+
+
+def pm(row: Any, column: str, digits: int = 3) -> str:
+    """``mean +- spread`` of an :func:`ensemble` row (the mean alone for one packing)."""
+    sd = row[f"{column}_sd"]
+    text = f"{row[column]:.{digits}g}"
+    return text + ("" if not np.isfinite(sd) else f" +- {sd:.{digits}g}")
+
+
+def seed_label(label: str, seed: int) -> str:
+    """A run's label for packing ``seed``: seed 0 keeps the plain label (earlier runs resume)."""
+    return label + (f"_s{seed}" if seed else "")
+
+
+def seed_params(params: dict[str, Any], seed: int) -> dict[str, Any]:
+    """The column's parameters for packing ``seed`` (seed 0: the builder's default)."""
+    return {**params, "seed": seed} if seed else dict(params)
 
 
 def base_params(n: int, mu: float, slope: float = 0.0, **extra: Any) -> dict[str, Any]:

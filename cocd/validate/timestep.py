@@ -63,12 +63,12 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     for seed in range(seeds):
         series = []
         for dt in dts:
-            label = f"n{n}_dt{dt:.0e}" + (f"_s{seed}" if seed else "")
+            label = base.seed_label(f"n{n}_dt{dt:.0e}", seed)
             progress(f"timestep: {label} ({cfg.solver}, tol {cfg.tol:g}) to t = {max(times):g} s")
             series.append(
                 base.collapse_series(
                     out / "runs" / "timestep" / label,
-                    {**params, "seed": seed} if seed else params,
+                    base.seed_params(params, seed),
                     cfg,
                     label=label,
                     dt=dt,
@@ -163,17 +163,11 @@ def _rows(series: list[Any], dts: list[float], times: list[float], seed: int) ->
 def _ensemble(table: pd.DataFrame) -> pd.DataFrame:
     """Mean and sample spread over the packings, per (dt, t)."""
     tab = table.assign(front_d=table.front_m / table.d_mean_m)
-    grouped = tab.groupby(["dt", "t"], sort=True)
-    out = grouped.size().rename("seeds").to_frame()
-    for column in ("profile_error", "profile_error_4d", "front_d"):
-        out[column] = grouped[column].mean()
-        out[f"{column}_sd"] = grouped[column].std(ddof=1)
-    return out.reset_index().sort_values(["dt", "t"], ascending=[False, True])
+    out = base.ensemble(tab, ["dt", "t"], ["profile_error", "profile_error_4d", "front_d"])
+    return out.sort_values(["dt", "t"], ascending=[False, True])
 
 
-def _pm(row: Any, column: str) -> str:
-    sd = row[f"{column}_sd"]
-    return base.fmt(row[column]) + ("" if not np.isfinite(sd) else f" +- {base.fmt(sd)}")
+_pm = base.pm
 
 
 def _summary(ensemble: pd.DataFrame, dts: list[float], seeds: int, ref: Any, cfg: Any) -> str:
