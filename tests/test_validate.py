@@ -129,6 +129,24 @@ def test_cocd_and_nscd_profiles_are_close(tmp_path):
     assert np.all(np.abs(table.front_cocd_m - table.front_nscd_m) < d)
 
 
+def test_cocd_against_nscd_over_two_packings_gives_mean_and_spread(tmp_path):
+    table = nscd.STUDY(
+        n=30, times_T=[1.0], solver="clarabel", seeds=2, out=tmp_path, progress=_quiet([])
+    )
+    assert sorted(table.seed) == [0, 1]
+    ensemble = pd.read_csv(tmp_path / "nscd_ensemble.csv")
+    (row,) = ensemble.itertuples()
+    assert row.seeds == 2
+    assert row.profile_difference == pytest.approx(table.profile_difference.mean())
+    assert row.front_gap_d_sd == pytest.approx(table.front_gap_d.std(ddof=1))
+    gap = (table.front_nscd_m - table.front_cocd_m) / table.d_mean_m
+    np.testing.assert_allclose(table.front_gap_d, gap)
+    summary = json.loads((tmp_path / "nscd.meta.json").read_text())["summary"]
+    g = "{:.3g}".format
+    assert f"gap NSCD - COCD {g(row.front_gap_d)} +- {g(row.front_gap_d_sd)} d" in summary
+    assert "2 packings" in summary
+
+
 def test_an_erodible_layer_lengthens_the_runout(tmp_path):
     table = erodible.STUDY(
         n=60,

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cocd.bench import estimate
+from cocd.bench import estimate, report
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
@@ -34,6 +34,7 @@ class Settings(RunSettings):
     tol: float = option(1e-8, "Tolerance of the convex backend.")
     nscd_tol: float = option(1e-5, "Tolerance of nscd.")
     nscd_max_iter: int = option(100000, "Sweeps allowed to nscd per step.")
+    seeds: int = option(1, "Packings: the column is built with seeds 0 .. seeds-1.")
     nscd_symmetric: bool = option(
         True,
         "Alternate nscd's sweep direction or not.",
@@ -64,100 +65,173 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     times = sorted({round(t * period / frame_dt) * frame_dt for t in times_T})
     if times[0] <= 0.0:
         raise CocdError(f"times_T {times_T} round to t = 0 s: ask for later times")
-    estimate.announce("nscd", [(n, 2 * round(max(times) / dt))], out=out, progress=progress)
-    runs = []
+    seeds = base.positive_int("seeds", cfg.seeds)
+    estimate.announce("nscd", [(n, 2 * seeds * round(max(times) / dt))], out=out, progress=progress)
     nscd_options: dict[str, Any] = {
         "max_iter": cfg.nscd_max_iter,
         "solver_options": {"symmetric": cfg.nscd_symmetric},
     }
-    for how, extra in (
-        (cfg, dict[str, Any]()),
-        (dataclasses.replace(cfg, solver="nscd", tol=cfg.nscd_tol, fallback=()), nscd_options),
-    ):
-        label = f"n{n}_{how.solver.replace(':', '-')}"
-        if how.solver == "nscd" and cfg.nscd_symmetric:
-            label += "-symmetric"
-        progress(f"nscd: {label} (tol {how.tol:g}) to t = {max(times):g} s")
-        runs.append(
-            base.collapse_series(
-                out / "runs" / "nscd" / label,
-                params,
-                how,
-                label=label,
-                dt=dt,
-                until=max(times),
-                frame_dt=frame_dt,
-                profile_times=times,
-                progress=progress,
-                **extra,
+    rows: list[dict[str, Any]] = []
+    first: list[base.CollapseSeries] = []
+    for seed in range(seeds):
+        runs = []
+        for how, extra in (
+            (cfg, dict[str, Any]()),
+            (dataclasses.replace(cfg, solver="nscd", tol=cfg.nscd_tol, fallback=()), nscd_options),
+        ):
+            label = f"n{n}_{how.solver.replace(':', '-')}"
+            if how.solver == "nscd" and cfg.nscd_symmetric:
+                label += "-symmetric"
+            label = base.seed_label(label, seed)
+            progress(f"nscd: {label} (tol {how.tol:g}) to t = {max(times):g} s")
+            runs.append(
+                base.collapse_series(
+                    out / "runs" / "nscd" / label,
+                    base.seed_params(params, seed),
+                    how,
+                    label=label,
+                    dt=dt,
+                    until=max(times),
+                    frame_dt=frame_dt,
+                    profile_times=times,
+                    progress=progress,
+                    **extra,
+                )
             )
-        )
-    cocd_run, nscd_run = runs
-    rows = []
-    for k, t in enumerate(times):
-        rows.append(
-            {
-                "t": t,
-                "t_over_T": t / period,
-                "profile_difference": base.profile_error(
-                    nscd_run.profiles[k], cocd_run.profiles[k]
-                ),
-                "profile_difference_4d": base.profile_error(
-                    base.coarsen(nscd_run.profiles[k], base.COARSE),
-                    base.coarsen(cocd_run.profiles[k], base.COARSE),
-                ),
-                "front_cocd_m": float(np.interp(t, cocd_run.times, cocd_run.front)),
-                "front_nscd_m": float(np.interp(t, nscd_run.times, nscd_run.front)),
-            }
-        )
+        first = first or runs
+        rows += _rows(runs, times, period, seed)
     table = pd.DataFrame(rows)
-    for s, name in ((cocd_run, "cocd"), (nscd_run, "nscd")):
-        table[f"compute_s_{name}"] = s.compute_s
-        table[f"penetration_max_{name}"] = s.penetration_max
-        table[f"max_residual_{name}"] = float(
-            (s.stats.ccp_residual if name == "cocd" else s.stats.coulomb_residual).max()
-        )
+    ensemble = base.ensemble(table, ["t", "t_over_T"], _ENSEMBLE)
+    files = report.write_table(
+        out,
+        "nscd_ensemble",
+        ensemble,
+        title="COCD against NSCD (Fig. 4): mean and spread over the packings",
+        intro="Per time, over the packings (`seeds` of them): mean and sample standard "
+        "deviation (`_sd`, empty for one packing) of the profile differences and of the "
+        "fronts in mean diameters from the back wall (`front_*_d`) and their gap "
+        "(`front_gap_d` = NSCD - COCD).",
+    )
     figures = [
         base.profile_figure(
             out / "nscd_profiles.png",
-            runs,
+            first,
             [f"COCD ({cfg.solver}, tol {cfg.tol:g})", f"NSCD (nscd, tol {cfg.nscd_tol:g})"],
-        )
+        ),
+        _front_figure(out / "nscd_front.png", table, period, cfg),
     ]
+    summary = _summary(ensemble, seeds, first[0], period, dt, cfg)
+    intro = (
+        "`profile_difference` = ||h_nscd - h_cocd|| / ||h_cocd|| over bins one mean diameter "
+        "wide, `profile_difference_4d` over profiles averaged on 4 diameters; fronts "
+        "(`surface_front`, a grain's reach) from the back wall in metres and in mean "
+        "diameters (`_d`); `seed`: the packing; residuals are each scheme's own "
+        "(`ccp_residual` for COCD, `coulomb_residual` for NSCD); `compute_s_*`: detection, "
+        "set-up and solve time of each whole run."
+    )
+    base.finish(
+        out,
+        "nscd",
+        "COCD against NSCD (Fig. 4)",
+        table,
+        intro,
+        summary,
+        [*files, *figures],
+        progress,
+    )
+    return table
+
+
+_ENSEMBLE = (
+    "profile_difference",
+    "profile_difference_4d",
+    "front_cocd_d",
+    "front_nscd_d",
+    "front_gap_d",
+)
+
+
+def _rows(runs: list[Any], times: list[float], period: float, seed: int) -> list[dict]:
+    """One row per time of one packing: the two runs' profiles and fronts compared."""
+    cocd_run, nscd_run = runs
+    rows = []
+    for k, t in enumerate(times):
+        front_cocd = float(np.interp(t, cocd_run.times, cocd_run.front))
+        front_nscd = float(np.interp(t, nscd_run.times, nscd_run.front))
+        d = cocd_run.d_mean
+        row: dict[str, Any] = {
+            "seed": seed,
+            "t": t,
+            "t_over_T": t / period,
+            "profile_difference": base.profile_error(nscd_run.profiles[k], cocd_run.profiles[k]),
+            "profile_difference_4d": base.profile_error(
+                base.coarsen(nscd_run.profiles[k], base.COARSE),
+                base.coarsen(cocd_run.profiles[k], base.COARSE),
+            ),
+            "front_cocd_m": front_cocd,
+            "front_nscd_m": front_nscd,
+            "front0_m": float(cocd_run.front[0]),
+            "d_mean_m": d,
+            "front_cocd_d": front_cocd / d,
+            "front_nscd_d": front_nscd / d,
+            "front_gap_d": (front_nscd - front_cocd) / d,
+        }
+        for s, name in ((cocd_run, "cocd"), (nscd_run, "nscd")):
+            row[f"compute_s_{name}"] = s.compute_s
+            row[f"penetration_max_{name}"] = s.penetration_max
+            row[f"max_residual_{name}"] = float(
+                (s.stats.ccp_residual if name == "cocd" else s.stats.coulomb_residual).max()
+            )
+        rows.append(row)
+    return rows
+
+
+def _front_figure(path: Path, table: pd.DataFrame, period: float, cfg: Settings) -> Path:
+    """Fronts on the seed's axes, ``(r_f - R0) / R0`` against ``t / sqrt(H0/g)``: mean and
+    spread over the packings at the profile times."""
     plt = base.pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
-    for s, name in ((cocd_run, "COCD"), (nscd_run, "NSCD")):
-        ax.plot(s.times / period, (s.front - s.front[0]) / s.front[0], label=name)
+    tab = table.assign(
+        cocd=(table.front_cocd_m - table.front0_m) / table.front0_m,
+        nscd=(table.front_nscd_m - table.front0_m) / table.front0_m,
+    )
+    grouped = tab.groupby("t_over_T")
+    for column, name in (("cocd", f"COCD ({cfg.solver})"), ("nscd", "NSCD (nscd)")):
+        mean, sd = grouped[column].mean(), grouped[column].std(ddof=1).fillna(0.0)
+        ax.errorbar(mean.index, mean, yerr=sd, marker="o", capsize=3, label=name)
+    seeds = table.seed.nunique()
+    ax.set_title(f"mu = {cfg.mu:g}, {seeds} packing{'s' if seeds > 1 else ''} (mean +- sd)")
     ax.set_xlabel("t / sqrt(H0 / g)")
     ax.set_ylabel("(r_f - R0) / R0")
     ax.grid(True, alpha=0.3)
     ax.legend()
-    figures.append(base.save_figure(fig, out / "nscd_front.png"))
-    diffs = ", ".join(
-        f"{base.fmt(d)} ({base.fmt(d4)} on 4 d) at t = {tt:.2g} T"
-        for tt, d, d4 in zip(
-            table.t_over_T, table.profile_difference, table.profile_difference_4d, strict=True
-        )
+    return base.save_figure(fig, path)
+
+
+def _summary(
+    ensemble: pd.DataFrame, seeds: int, ref: Any, period: float, dt: float, cfg: Settings
+) -> str:
+    """The summary, every number taken from ``ensemble``."""
+    pm = base.pm
+    diffs = "; ".join(
+        f"t = {row.t_over_T:.2g} T: {pm(row, 'profile_difference')} "
+        f"({pm(row, 'profile_difference_4d')} on 4 d)"
+        for _, row in ensemble.iterrows()
     )
-    final = table.iloc[-1]
-    summary = (
-        f"2D collapse of {cocd_run.n_grains} discs (mu = {cfg.mu:g}, rough horizontal bed, "
-        f"dt = {dt:g} s, T = sqrt(H0/g) = {period:.4g} s), COCD with `{cfg.solver}` at tol "
+    final = ensemble.iloc[-1]
+    return (
+        f"2D collapse of {ref.n_grains} discs (mu = {cfg.mu:g}, rough horizontal bed, "
+        f"dt = {dt:g} s, T = sqrt(H0/g) = {period:.4g} s), {seeds} "
+        f"packing{'s' if seeds > 1 else ''}, COCD with `{cfg.solver}` at tol "
         f"{cfg.tol:g} against `nscd` (exact Coulomb law, "
         f"{'symmetric ' if cfg.nscd_symmetric else ''}Gauss-Seidel) at tol {cfg.nscd_tol:g}. "
-        f"Relative profile difference: **{diffs}**; fronts at t = {final.t_over_T:.2g} T: "
-        f"{final.front_cocd_m:.4f} m (COCD) and {final.front_nscd_m:.4f} m (NSCD). "
+        f"Relative profile difference (mean +- spread over the packings): **{diffs}**. "
+        f"Fronts at t = {final.t_over_T:.2g} T: {pm(final, 'front_cocd_d')} d (COCD) and "
+        f"{pm(final, 'front_nscd_d')} d (NSCD) from the back wall, gap NSCD - COCD "
+        f"{pm(final, 'front_gap_d')} d. "
         "The seed (Fig. 4: 7740 discs in COCD against 6036 in a published NSCD run) "
         "finds the two methods' profiles 'very close'."
     )
-    intro = (
-        "`profile_difference` = ||h_nscd - h_cocd|| / ||h_cocd|| over bins one mean diameter "
-        "wide, `profile_difference_4d` over profiles averaged on 4 diameters; residuals are "
-        "each scheme's own (`ccp_residual` for COCD, `coulomb_residual` for NSCD); "
-        "`compute_s_*`: detection, set-up and solve time of each whole run."
-    )
-    base.finish(out, "nscd", "COCD against NSCD (Fig. 4)", table, intro, summary, figures, progress)
-    return table
 
 
 STUDY = register(
