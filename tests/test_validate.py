@@ -170,6 +170,39 @@ def test_an_erodible_layer_lengthens_the_runout(tmp_path):
     assert (tmp_path / "erodible_front.png").stat().st_size > 0
 
 
+def test_erodible_gaps_between_layers_over_two_packings(tmp_path):
+    """Two packings, two layers: the gap table holds each packing's runout difference in
+    R0, averaged with its spread, and the summary quotes it."""
+    table = erodible.STUDY(
+        n=30,
+        slopes=[22.0],
+        layers_d=[0.0, 3.0],
+        until=0.2,
+        bed_length=0.8,
+        solver="clarabel",
+        seeds=2,
+        out=tmp_path,
+        progress=_quiet([]),
+    )
+    assert sorted(table.seed) == [0, 0, 1, 1]
+    per_seed = [
+        (sub.set_index("layer_d").runout_m[3.0] - sub.set_index("layer_d").runout_m[0.0])
+        / sub.front0_m.iloc[0]
+        for _, sub in table.groupby("seed")
+    ]
+    (gap,) = pd.read_csv(tmp_path / "erodible_gaps.csv").itertuples()
+    assert gap.seeds == 2 and (gap.from_layer_d, gap.to_layer_d) == (0.0, 3.0)
+    assert gap.gap_R0 == pytest.approx(np.mean(per_seed))
+    assert gap.gap_R0_sd == pytest.approx(np.std(per_seed, ddof=1))
+    assert np.isnan(gap.seed_gap_R0)  # the seed quotes 3 to 5 grains only
+    ensemble = pd.read_csv(tmp_path / "erodible_ensemble.csv").set_index("layer_d")
+    ratios = table[table.layer_d == 3.0].runout_ratio
+    assert ensemble.runout_ratio[3.0] == pytest.approx(ratios.mean())
+    summary = json.loads((tmp_path / "erodible.meta.json").read_text())["summary"]
+    g = "{:.3g}".format
+    assert f"0 to 3 d at 22 deg: {g(gap.gap_R0)} +- {g(gap.gap_R0_sd)} R0" in summary
+
+
 def test_runout_grows_with_the_aspect_ratio(tmp_path):
     from cocd.validate import runout
 
