@@ -282,6 +282,8 @@ def test_a_tighter_tolerance_keeps_a_box_at_rest(tmp_path):
     row = table.set_index("solver").loc["apgd"]
     assert row.largest_eps_at_rest == 1e-5 and row.consistent
     assert "stability_threshold" in (tmp_path / "README.md").read_text()
+    sens = pd.read_csv(tmp_path / "stability_criterion.csv")
+    assert sorted(sens.threshold.unique()) == [1e-8, 1e-7, 1e-6, 1e-5, 1e-4]
 
 
 def test_profile_error_and_thresholds():
@@ -304,6 +306,16 @@ def test_profile_error_and_thresholds():
     assert th.loc["a", "largest_eps_at_rest"] == 1e-2 and th.loc["a", "consistent"]
     assert math.isnan(th.loc["b", "largest_eps_at_rest"]) and not th.loc["b", "consistent"]
     assert th.loc["b", "unfinished"] == "0.01"
+    # The same runs judged with other at-rest criteria.
+    from cocd.studies._stability_report import criterion_sensitivity
+
+    runs = summary.assign(
+        max_energy_ratio=[1e-3, 1e-6, 1e-8, 1e-9, 1e-9], note=["", "", "", "", "budget"]
+    )
+    sens = criterion_sensitivity(runs, (1e-5, 1e-7)).set_index(["threshold", "solver"])
+    assert sens.loc[(1e-5, "a"), "largest_eps_at_rest"] == 1e-2
+    assert sens.loc[(1e-7, "a"), "largest_eps_at_rest"] == 1e-3
+    assert sens.loc[(1e-5, "b"), "largest_eps_at_rest"] == 1e-1  # its 0.01 run was cut
 
 
 def test_bad_arguments_are_one_line_errors(tmp_path):

@@ -77,8 +77,29 @@ def write_thresholds(
         f"(Ek/E < {threshold:g} over {t_end:g} sqrt(H/g), dt = {dt:g} s): **{', '.join(parts)}**. "
         "The seed (Fig. 3, Mosek, 110 233 spheres) keeps its box at rest for eps <= 1e-3."
     )
+    sensitivity = criterion_sensitivity(summary, CRITERIA)
+    moved = []
+    for value in CRITERIA:
+        if value == threshold:
+            continue
+        sub = sensitivity[sensitivity.threshold == value]
+        cells = ", ".join(f"`{r.solver}` {_eps(r.largest_eps_at_rest)}" for r in sub.itertuples())
+        moved.append(f"at {value:g}: {cells}")
+    text += (
+        " The same runs judged with other criteria (Ek/E below the value given; no run "
+        f"again): {'; '.join(moved)}."
+    )
+    files_s = report.write_table(
+        out,
+        "stability_criterion",
+        sensitivity,
+        title="Sensitivity of the stability threshold to the at-rest criterion (Fig. 3)",
+        intro="The runs of `stability_summary` judged at rest with several thresholds on "
+        "max Ek / (Ek + Ep): per threshold and backend, the largest tolerance at rest and "
+        "whether every smaller finished tolerance was at rest too.",
+    )
     title = "Stability threshold per backend (Fig. 3)"
-    files = report.write_table(
+    files = files_s + report.write_table(
         out,
         "stability_threshold",
         table,
@@ -89,6 +110,28 @@ def write_thresholds(
     )
     report.write_meta(out, "stability_threshold", title=title, files=files, summary=text)
     return [*files, out / "stability_threshold.meta.json"]
+
+
+#: At-rest criteria (thresholds on max Ek / (Ek + Ep)) of the sensitivity table.
+CRITERIA = (1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
+
+
+def criterion_sensitivity(summary: pd.DataFrame, thresholds: tuple[float, ...]) -> pd.DataFrame:
+    """:func:`stability_thresholds` of the same runs judged at rest with each threshold on
+    ``max_energy_ratio`` (a run stopped early or with a note is never at rest)."""
+    finished = (summary.steps_done == summary.steps_asked) & (
+        summary.note.fillna("").astype(str) == ""
+    )
+    parts = []
+    for value in thresholds:
+        judged = summary.assign(at_rest=finished & (summary.max_energy_ratio < value))
+        parts.append(stability_thresholds(judged).assign(threshold=value))
+    table = pd.concat(parts, ignore_index=True)
+    return table[["threshold", "solver", "largest_eps_at_rest", "consistent"]]
+
+
+def _eps(value: float) -> str:
+    return "never" if math.isnan(value) else f"{value:g}"
 
 
 def stability_thresholds(summary: pd.DataFrame) -> pd.DataFrame:

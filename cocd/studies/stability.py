@@ -467,12 +467,12 @@ STUDY = study.register(
 
 @dataclass(frozen=True)
 class SeedSettings(Settings):
-    """The defaults ``cocd validate stability`` had: a smaller box, the backends of the
-    validation, five tolerances, a time limit and a budget per run."""
+    """The defaults ``cocd validate stability`` has: a smaller box, the backends of the
+    validation, six tolerances (1e-5 the seed's), a time limit and a budget per run."""
 
     solvers: str | None = study.solvers("ipm,clarabel,scs,apgd,pgs,nscd")
     tols: tuple[float, ...] = option(
-        (1e-1, 1e-2, 1e-3, 1e-4, 1e-6),
+        (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6),
         "Comma-separated tolerances.",
         kind="floats",
         aliases=("--eps-list",),
