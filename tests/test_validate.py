@@ -207,7 +207,7 @@ def test_runout_grows_with_the_aspect_ratio(tmp_path):
     from cocd.validate import runout
 
     table = runout.STUDY(
-        aspects=[0.5, 1.0, 2.0, 4.0],
+        aspects=[0.5, 0.7, 1.0, 1.4, 2.0, 4.0],
         area=0.004,
         diameter=0.01,
         solver="clarabel",
@@ -222,7 +222,11 @@ def test_runout_grows_with_the_aspect_ratio(tmp_path):
     assert not table.reached_end.any()
     assert (table.front_speed_end_d_per_s < 1.0).all()  # at rest at the end
     fits = pd.read_csv(tmp_path / "runout_scaling_fit.csv").set_index("quantity")
-    assert fits.loc["(Lf - L0)/L0", "k_all"] > 0.5
+    fit = fits.loc["(Lf - L0)/L0"]
+    assert fit.k_all > 0.5 and 0.0 < fit.k_all_ci < 1.0
+    assert fit.n_low == 3 and fit.n_high == 3  # three ratios a side, the least allowed
+    summary = json.loads((tmp_path / "runout_scaling.meta.json").read_text())["summary"]
+    assert f"a^({fit.k_all:.2f} +- {fit.k_all_ci:.2f})" in summary
     assert (tmp_path / "runout_scaling.png").stat().st_size > 0
 
 
@@ -258,6 +262,16 @@ def test_two_power_laws_are_recovered():
     assert 2.0 < fit["a_c"] < 4.5
     with pytest.raises(CocdError, match="positive, finite"):
         fit_two_power_laws([1.0, 2.0], [1.0, -1.0])
+    # Three noisy packings per ratio: the 95 % intervals hold the true exponents (fixed
+    # seed), narrow with the noise, and a side needs three distinct ratios.
+    rng = np.random.default_rng(3)
+    aa = np.repeat(np.geomspace(0.5, 20.0, 10), 3)
+    yy = np.where(aa < 3.0, 2.0 * aa, 2.0 * 3.0 ** (1 / 3) * aa ** (2 / 3))
+    noisy = fit_two_power_laws(aa, yy * np.exp(rng.normal(0.0, 0.05, aa.size)))
+    assert abs(noisy["k_low"] - 1.0) < noisy["k_low_ci"] < 0.3
+    assert abs(noisy["k_high"] - 2 / 3) < noisy["k_high_ci"] < 0.3
+    few = fit_two_power_laws([1.0, 2.0, 3.0, 4.0, 5.0], [1.0, 2.0, 3.0, 3.5, 4.0])
+    assert math.isnan(few["a_c"]) and math.isfinite(few["k_all_ci"])
 
 
 def test_a_tighter_tolerance_keeps_a_box_at_rest(tmp_path):
@@ -328,7 +342,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["erodible", "--layers", "0,-3"], "layer thicknesses must be >= 0"),
         (["erodible", "--slopes", "95"], "slopes must be in [0, 90)"),
         (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
-        (["runout", "--aspects", "1,2"], "at least 4 aspect ratios"),
+        (["runout", "--aspects", "1,2,3,4"], "at least 6 aspect ratios"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
     ):
         result = runner.invoke(app, ["validate", *args, *out])

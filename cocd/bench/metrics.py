@@ -146,15 +146,17 @@ def fit_exponent(n: Any, t: Any) -> tuple[float, float]:
 
 
 def fit_two_power_laws(
-    a: Sequence[float], y: Sequence[float], *, min_points: int = 2
+    a: Sequence[float], y: Sequence[float], *, min_points: int = 3
 ) -> dict[str, float]:
     """Fit ``y = c1 a^k1`` below a split ``a_c`` and ``y = c2 a^k2`` above it.
 
-    The split is placed between two consecutive ``a`` (at their geometric mean)
-    where the summed squared residuals of ``log y`` are least, each side having at
-    least ``min_points`` points. Returns ``a_c``, ``k_low``, ``c_low``,
-    ``k_high``, ``c_high`` and ``k_all``, ``c_all`` (one law through every
-    point); NaN where a side has too few points.
+    The split is placed between two consecutive distinct ``a`` (at their geometric
+    mean) where the summed squared residuals of ``log y`` are least, each side having
+    at least ``min_points`` distinct ``a``. Several ``y`` per ``a`` (packings) are
+    fitted as they are. Returns ``a_c``, ``k_low``, ``c_low``, ``k_high``, ``c_high``
+    and ``k_all``, ``c_all`` (one law through every point), and for each exponent
+    ``k_*_ci``, the half-width of its 95 % confidence interval (Student's t on the
+    slope's standard error; NaN for two points). NaN where a side has too few points.
     """
     av = np.asarray(a, dtype=float)
     yv = np.asarray(y, dtype=float)
@@ -163,32 +165,50 @@ def fit_two_power_laws(
     if not good:
         raise CocdError("power-law fits need at least two positive, finite (a, y) pairs")
     x, z = np.log(av), np.log(yv)
-    order = np.argsort(x)
+    order = np.argsort(x, kind="stable")
     x, z = x[order], z[order]
-    k_all, c_all = np.polyfit(x, z, 1)
-    out = {"k_all": float(k_all), "c_all": float(math.exp(c_all))}
-    best: tuple[float, int] | None = None
-    for split in range(min_points, x.size - min_points + 1):
+    k_all, c_all, ci_all = _line(x, z)
+    out = {"k_all": k_all, "c_all": math.exp(c_all), "k_all_ci": ci_all}
+    distinct = np.unique(x)
+    best: tuple[float, float] | None = None
+    for j in range(min_points, distinct.size - min_points + 1):
+        cut = 0.5 * (distinct[j - 1] + distinct[j])
+        low = x < cut
         cost = 0.0
-        for part in (slice(0, split), slice(split, None)):
+        for part in (low, ~low):
             coef = np.polyfit(x[part], z[part], 1)
             cost += float(np.sum((np.polyval(coef, x[part]) - z[part]) ** 2))
         if best is None or cost < best[0]:
-            best = (cost, split)
+            best = (cost, cut)
     if best is None:
-        out.update(a_c=math.nan, k_low=math.nan, c_low=math.nan, k_high=math.nan, c_high=math.nan)
+        out.update(
+            a_c=math.nan, k_low=math.nan, c_low=math.nan, k_high=math.nan, c_high=math.nan,
+            k_low_ci=math.nan, k_high_ci=math.nan,
+        )  # fmt: skip
         return out
-    split = best[1]
-    k1, c1 = np.polyfit(x[:split], z[:split], 1)
-    k2, c2 = np.polyfit(x[split:], z[split:], 1)
+    low = x < best[1]
+    k1, c1, ci1 = _line(x[low], z[low])
+    k2, c2, ci2 = _line(x[~low], z[~low])
     out.update(
-        a_c=float(math.exp(0.5 * (x[split - 1] + x[split]))),
-        k_low=float(k1),
-        c_low=float(math.exp(c1)),
-        k_high=float(k2),
-        c_high=float(math.exp(c2)),
+        a_c=float(math.exp(best[1])),
+        k_low=k1,
+        c_low=math.exp(c1),
+        k_high=k2,
+        c_high=math.exp(c2),
+        k_low_ci=ci1,
+        k_high_ci=ci2,
     )
     return out
+
+
+def _line(x: np.ndarray, z: np.ndarray) -> tuple[float, float, float]:
+    """Least-squares slope, intercept and the 95 % half-width of the slope."""
+    from scipy import stats
+
+    fit = stats.linregress(x, z)
+    dof = x.size - 2
+    ci = float(stats.t.ppf(0.975, dof) * fit.stderr) if dof > 0 else math.nan
+    return float(fit.slope), float(fit.intercept), ci
 
 
 def finite(value: object) -> bool:

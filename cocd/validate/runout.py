@@ -49,7 +49,9 @@ class Settings(RunSettings):
     """The options of ``cocd validate runout``."""
 
     aspects: tuple[float, ...] = option(
-        (0.5, 0.9, 1.6, 3.0, 5.5, 10.0), "Aspect ratios H0/L0.", kind="floats"
+        (0.5, 0.8, 1.2, 1.8, 2.7, 4.0, 6.0, 9.0, 13.0, 20.0),
+        "Aspect ratios H0/L0.",
+        kind="floats",
     )
     area: float = option(0.02, "Column cross-section L0 H0 (m^2).")
     diameter: float = option(0.007, "Mean grain diameter (m).")
@@ -57,6 +59,7 @@ class Settings(RunSettings):
     dt: float = option(1e-3, "Time step (s).")
     rest_T: float = option(12.0, "Run time in units of sqrt(H0/g).", flag="--rest-T")
     min_time: float = option(1.0, "Shortest run (s), whatever the aspect ratio.")
+    seeds: int = option(1, "Packings: each column is built with seeds 0 .. seeds-1.")
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
@@ -68,8 +71,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     seconds. Returns the table written to ``runout_scaling.csv``, one row per ``a``.
     """
     aspects = sorted(base.positive_list("aspects", cfg.aspects))
-    if len(aspects) < 4:
-        raise CocdError("scaling needs at least 4 aspect ratios (two per regime)")
+    if len(aspects) < 6:
+        raise CocdError("scaling needs at least 6 aspect ratios (three per regime)")
+    seeds = base.positive_int("seeds", cfg.seeds)
     area, diameter, dt, rest_T, min_time = base.positive_list(
         "area, diameter, dt, rest_T, min_time",
         [cfg.area, cfg.diameter, cfg.dt, cfg.rest_T, cfg.min_time],
@@ -85,20 +89,20 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 max(min_time, rest_T * math.sqrt(math.sqrt(area * a) / G)) / dt,
             )
             for a in aspects
+            for _ in range(seeds)
         ],
         out=out,
         progress=progress,
     )
     rows = []
-    series = []
-    for a in aspects:
+    for seed, a in ((seed, a) for seed in range(seeds) for a in aspects):
         L0, H0 = math.sqrt(area / a), math.sqrt(area * a)
         until = max(min_time, rest_T * math.sqrt(H0 / G))
         until = math.ceil(until / frame_dt - 1e-9) * frame_dt
         # Room for the runout: the 2D laws give (Lf - L0)/L0 of about 2 a for small a,
         # about 3 a^(2/3) beyond; twice that, and at least 4 L0.
         bed = L0 * (1.0 + max(4.0, 2.0 * max(2.0 * a, 3.0 * a ** (2.0 / 3.0))))
-        label = f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}"
+        label = base.seed_label(f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}", seed)
         params = {
             "dim": 2,
             "diameter": diameter,
@@ -111,7 +115,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         progress(f"scaling: {label} (L0 = {L0:.3f} m, H0 = {H0:.3f} m) to t = {until:g} s")
         s = base.collapse_series(
             out / "runs" / "scaling" / label,
-            params,
+            base.seed_params(params, seed),
             cfg,
             label=label,
             dt=dt,
@@ -120,7 +124,6 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             profile_times=[until],
             progress=progress,
         )
-        series.append(s)
         L0_measured = float(s.front[0])
         Lf = float(s.front[-1])
         Hf = float(np.max(s.profiles[-1]))
@@ -129,6 +132,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         speed = (s.front[-1] - s.front[k]) / max(s.times[-1] - s.times[k], frame_dt)
         rows.append(
             {
+                "seed": seed,
                 "a": a,
                 "L0_m": L0,
                 "H0_m": H0,
@@ -147,12 +151,16 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     table = pd.DataFrame(rows)
     fit_r = fit_two_power_laws(table.a, table.runout)
     fit_h = fit_two_power_laws(table.a, 1.0 / table.Hf_over_H0)
+    for fit in (fit_r, fit_h):
+        fit["n_low"] = float(sum(a < fit["a_c"] for a in aspects))
+        fit["n_high"] = float(sum(a > fit["a_c"] for a in aspects))
     fits = pd.DataFrame(
         [
             {"quantity": "(Lf - L0)/L0", **fit_r},
             {"quantity": "H0/Hf", **fit_h},
         ]
     )
+    ensemble = base.ensemble(table, ["a"], ["runout", "Hf_over_H0"])
     figures = [_figure(out / "runout_scaling.png", table, fit_r, fit_h)]
     files = base.report.write_table(
         out,
@@ -160,24 +168,43 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         fits,
         title="Power-law fits of runout and height against aspect ratio",
         intro="`k_low`, `c_low`: `y = c a^k` for `a < a_c`; `k_high`, `c_high` above; "
-        "`k_all`: one law through every point.",
+        "`k_all`: one law through every point; `k_*_ci`: half-width of the exponent's 95 % "
+        "confidence interval; `n_low`, `n_high`: aspect ratios on each side. Every packing's "
+        "point is fitted.",
     )
+    files += base.report.write_table(
+        out,
+        "runout_scaling_ensemble",
+        ensemble,
+        title="Runout and height against aspect ratio: mean and spread over the packings",
+        intro="Per aspect ratio, over the packings (`seeds`): mean and sample standard "
+        "deviation (`_sd`) of the runout (Lf - L0)/L0 and of Hf/H0.",
+    )
+
+    def law(fit: dict[str, float], side: str) -> str:
+        return f"a^({fit[f'k_{side}']:.2f} +- {fit[f'k_{side}_ci']:.2f})"
+
     summary = (
         f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, mu = {cfg.mu:g}, "
-        f"{table.n_grains.min()} to {table.n_grains.max()} discs), a = "
-        f"{', '.join(f'{a:g}' for a in aspects)}, `{cfg.solver}` at tol {cfg.tol:g}. "
-        f"Runout (Lf - L0)/L0 ~ **a^{fit_r['k_low']:.2f} below a = {fit_r['a_c']:.2g}, "
-        f"a^{fit_r['k_high']:.2f} above**; H0/Hf ~ **a^{fit_h['k_low']:.2f} below a = "
-        f"{fit_h['a_c']:.2g}, a^{fit_h['k_high']:.2f} above** (one law: a^{fit_h['k_all']:.2f}). "
-        "Seed 001 quotes H0/Hf ~ a^0.69 in wide channels with a regime change at a of "
-        "order 3 to 7; 2D contact dynamics (Staron and Hinch 2005) gives a runout linear "
-        "in a at small a and growing as about a^(2/3) above a of about 3."
+        f"{table.n_grains.min()} to {table.n_grains.max()} discs), {len(aspects)} aspect "
+        f"ratios a = {', '.join(f'{a:g}' for a in aspects)}, {seeds} "
+        f"packing{'s' if seeds > 1 else ''} each, `{cfg.solver}` at tol {cfg.tol:g}. "
+        "Exponents with their 95 % intervals: runout (Lf - L0)/L0 ~ "
+        f"**{law(fit_r, 'low')} below a = {fit_r['a_c']:.2g} ({fit_r['n_low']:.0f} ratios), "
+        f"{law(fit_r, 'high')} above ({fit_r['n_high']:.0f})**; H0/Hf ~ **{law(fit_h, 'low')} "
+        f"below a = {fit_h['a_c']:.2g} ({fit_h['n_low']:.0f} ratios), {law(fit_h, 'high')} "
+        f"above ({fit_h['n_high']:.0f})**; one law through every point: runout "
+        f"{law(fit_r, 'all')}, H0/Hf {law(fit_h, 'all')}. "
+        "Seed 001 quotes H0/Hf ~ a^0.69 in wide channels and a^0.5 in narrow ones, with a "
+        "regime change near a = 7 in the wide one; 2D contact dynamics (Staron and Hinch "
+        "2005) gives a runout linear in a at small a and growing as about a^(2/3) above a of "
+        "about 3."
     )
     moving = table[table.front_speed_end_d_per_s > 1.0]
     if len(moving):
         summary += (
             " Still creeping at the end (front faster than one diameter per second): a = "
-            + ", ".join(f"{a:g}" for a in moving.a)
+            + ", ".join(f"{a:g}" for a in sorted(set(moving.a)))
             + "."
         )
     intro = (
