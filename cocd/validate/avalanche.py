@@ -48,11 +48,11 @@ __all__ = ["STUDY", "Settings", "run", "surface_angle"]
 G = 9.81
 #: A friction coefficient's result, and one hold of its sequence.
 CELL_COLUMNS = [
-    "mu", "n_grains", "avalanche_tilt_deg", "avalanche_deg", "stop_tilt_deg", "stop_deg",
+    "seed", "mu", "n_grains", "avalanche_tilt_deg", "avalanche_deg", "stop_tilt_deg", "stop_deg",
     "hysteresis_deg", "holds", "steps", "penetration_max", "compute_s", "setup",
 ]  # fmt: skip
 HOLD_COLUMNS = [
-    "mu", "phase", "tilt_deg", "t", "mean_speed", "surface_before_deg", "surface_after_deg",
+    "seed", "mu", "phase", "tilt_deg", "t", "mean_speed", "surface_before_deg", "surface_after_deg",
     "setup",
 ]  # fmt: skip
 
@@ -96,6 +96,7 @@ class Settings(RunSettings):
     hold: float = option(0.15, "Seconds held at each tilt.")
     dt: float = option(1e-3, "Time step (s).")
     v_flow: float = option(0.01, "Mean grain speed (m/s) above which the layer flows.")
+    seeds: int = option(1, "Packings: each layer is built with seeds 0 .. seeds-1.")
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
@@ -124,36 +125,48 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"hold={hold:g} step={step_deg:g} start={cfg.start_deg:g} d={diameter:g} "
         f"width={width_d:g}d v_flow={v_flow:g}"
     )
-    cells = Results(folder / "cells.csv", CELL_COLUMNS, resume=not cfg.fresh, key=("mu", "setup"))
+    seeds = base.positive_int("seeds", cfg.seeds)
+    cells = Results(
+        folder / "cells.csv", CELL_COLUMNS, resume=not cfg.fresh, key=("seed", "mu", "setup")
+    )
     holds_kept = Results(folder / "holds.csv", HOLD_COLUMNS, resume=not cfg.fresh,
-                         key=("setup", "mu", "phase", "tilt_deg"))  # fmt: skip
+                         key=("setup", "seed", "mu", "phase", "tilt_deg"))  # fmt: skip
     hold_steps = max(1, round(hold / dt))
     threshold = v_flow * math.sqrt(G * diameter)
     # A guide: up to the angle of repose near atan(mu) + 10 deg, then back down.
     holds = [
         2 * (math.degrees(math.atan(mu)) + 10.0 - cfg.start_deg) / step_deg
+        for seed in range(seeds)
         for mu in mus
-        if not cells.has(mu, setup)
+        if not cells.has(seed, mu, setup)
     ]
     estimate.announce(
         "avalanche", [(n, max(h, 2.0) * hold_steps) for h in holds], out=out, progress=progress
     )
     rows, traces = [], []
-    for mu in mus:
-        done = cells.get(mu, setup)
+    for seed, mu in ((seed, mu) for seed in range(seeds) for mu in mus):
+        done = cells.get(seed, mu, setup)
         if done is not None:
             rows.append({k: v for k, v in done.items() if k != "setup"})
             mine = holds_kept.frame()
-            mine = mine[(mine.setup == setup) & np.isclose(mine.mu.astype(float), mu)]
+            mine = mine[
+                (mine.setup == setup)
+                & (mine.seed.astype(int) == seed)
+                & np.isclose(mine.mu.astype(float), mu)
+            ]
             traces.append(mine.drop(columns="setup").reset_index(drop=True))
-            progress(f"avalanche: mu = {mu:g} already measured ({cells.path})")
+            progress(f"avalanche: mu = {mu:g}, seed {seed} already measured ({cells.path})")
             continue
-        scene = static_box(2, n_grains=n, diameter=diameter, width=width_d * diameter, mu=mu)
+        scene = static_box(
+            2, n_grains=n, diameter=diameter, width=width_d * diameter, mu=mu, seed=seed
+        )
         stepper = Stepper(scene, dt, solver=cfg.solver, tol=cfg.tol, fallback=cfg.fallback)
         trace: list[dict[str, Any]] = []
         tilt = cfg.start_deg
-        progress(f"avalanche: mu = {mu:g}, {scene.n_free} discs, tilting from {tilt:g} deg")
-        while _hold(stepper, tilt, hold_steps, "up", trace) <= threshold:
+        progress(
+            f"avalanche: mu = {mu:g}, seed {seed}, {scene.n_free} discs, tilting from {tilt:g} deg"
+        )
+        while _hold(stepper, tilt, hold_steps, "up", trace, seed) <= threshold:
             tilt += step_deg
             if tilt > cfg.max_deg:
                 raise CocdError(f"avalanche, mu = {mu:g}: no flow up to {cfg.max_deg:g} deg")
@@ -164,9 +177,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             tilt -= step_deg
             if tilt < 0.0:
                 raise CocdError(f"avalanche, mu = {mu:g}: still flowing at 0 deg")
-            if _hold(stepper, tilt, hold_steps, "down", trace) <= threshold:
+            if _hold(stepper, tilt, hold_steps, "down", trace, seed) <= threshold:
                 break
         row = {
+            "seed": seed,
             "mu": mu,
             "n_grains": scene.n_free,
             "avalanche_tilt_deg": avalanche_tilt,
@@ -193,19 +207,43 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     trace_table = pd.concat(traces, ignore_index=True)
     trace_path = out / "avalanche_trace.csv"
     trace_table.to_csv(trace_path, index=False)
-    figures = [_figure(out / "avalanche.png", table, trace_table, threshold), trace_path]
-    angles = "; ".join(
-        f"mu {r.mu:g}: {r.avalanche_deg:.1f} and {r.stop_deg:.1f} deg" for r in table.itertuples()
+    table = table.astype({"seed": int})
+    ensemble = base.ensemble(table, ["mu"], ["avalanche_deg", "stop_deg", "hysteresis_deg"])
+    files = base.report.write_table(
+        out,
+        "avalanche_ensemble",
+        ensemble,
+        title="Avalanche and stop angles: mean and spread over the packings",
+        intro="Per friction coefficient, over the packings (`seeds`): mean and sample standard "
+        f"deviation (`_sd`) of the angles, in degrees; the tilt moves by {step_deg:g} deg a "
+        "hold, which bounds how finely each packing's angles are known.",
     )
+    figures = [
+        _figure(out / "avalanche.png", ensemble, trace_table, threshold),
+        trace_path,
+        *files,
+    ]
+    pm = base.pm
+    angles = "; ".join(
+        f"mu {r.mu:g}: {pm(r, 'avalanche_deg')} and {pm(r, 'stop_deg')} deg, hysteresis "
+        f"{pm(r, 'hysteresis_deg')} deg"
+        for _, r in ensemble.iterrows()
+    )
+    resolved = [
+        f"{r.mu:g}"
+        for _, r in ensemble.iterrows()
+        if r.hysteresis_deg > step_deg
+        and (not np.isfinite(r.hysteresis_deg_sd) or r.hysteresis_deg > 2.0 * r.hysteresis_deg_sd)
+    ]
     summary = (
         f"A 2D layer of about {n} discs (d = {diameter * 1e3:g} mm) in a box {width_d:g} d "
-        f"wide, tilted in {step_deg:g} deg steps held {hold:g} s, `{cfg.solver}` at tol "
-        f"{cfg.tol:g}; "
-        f"flow when the mean speed exceeds {v_flow:g} sqrt(g d). Avalanche and stop angles: "
-        f"**{angles}**; hysteresis "
-        f"{', '.join(f'{h:.1f}' for h in table.hysteresis_deg)} deg. A DEM shows "
-        "avalanche > stop, both growing with friction; seed 001's continuum model, with a "
-        "single friction angle, starts and stops at the same angle."
+        f"wide, {seeds} packing{'s' if seeds > 1 else ''}, tilted in {step_deg:g} deg steps "
+        f"held {hold:g} s, `{cfg.solver}` at tol {cfg.tol:g}; flow when the mean speed exceeds "
+        f"{v_flow:g} sqrt(g d). Avalanche and stop angles (mean +- spread over the packings): "
+        f"**{angles}**. The hysteresis exceeds both one tilt step and twice its spread for mu "
+        f"= {', '.join(resolved) if resolved else 'none'}. A DEM shows avalanche > stop, both "
+        "growing with friction; seed 001's continuum model, with a single friction angle, "
+        "starts and stops at the same angle."
     )
     intro = (
         "`avalanche_tilt_deg`: the first tilt at whose end the layer flows; "
@@ -232,7 +270,9 @@ def _compute_seconds(stats: pd.DataFrame) -> float:
     return float((stats.detect_time + stats.setup_time + stats.solve_time).sum())
 
 
-def _hold(stepper: Any, tilt: float, steps: int, phase: str, trace: list[dict[str, Any]]) -> float:
+def _hold(
+    stepper: Any, tilt: float, steps: int, phase: str, trace: list[dict[str, Any]], seed: int
+) -> float:
     """Tilt gravity by ``tilt`` degrees, take ``steps`` steps, record the hold in ``trace``;
     returns the mean grain speed at its end."""
     scene = stepper.scene
@@ -246,6 +286,7 @@ def _hold(stepper: Any, tilt: float, steps: int, phase: str, trace: list[dict[st
     speed = float(np.mean(np.linalg.norm(scene.velocities[scene.free], axis=1)))
     trace.append(
         {
+            "seed": seed,
             "mu": scene.mu,
             "phase": phase,
             "tilt_deg": tilt,
@@ -258,27 +299,42 @@ def _hold(stepper: Any, tilt: float, steps: int, phase: str, trace: list[dict[st
     return speed
 
 
-def _figure(path: Path, table: pd.DataFrame, trace: pd.DataFrame, threshold: float) -> Path:
+def _figure(path: Path, ensemble: pd.DataFrame, trace: pd.DataFrame, threshold: float) -> Path:
+    """Seed 001's Fig. 1: the surface's angle against the tilt, up and down, per friction
+    coefficient (first packing); the grains' mean speed; the angles against mu."""
     plt = base.pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for mu, sub in trace.groupby("mu"):
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    first = trace[trace.seed.astype(int) == int(trace.seed.astype(int).min())]
+    for mu, sub in first.groupby("mu"):
         for phase, style in (("up", "-o"), ("down", "--s")):
             part = sub[sub.phase == phase]
-            axes[0].semilogy(
+            axes[0].plot(part.tilt_deg, part.surface_after_deg, style, ms=3,
+                         label=f"mu {mu:g} {phase}")  # fmt: skip
+            axes[1].semilogy(
                 part.tilt_deg, np.maximum(part.mean_speed, 1e-12), style, ms=3,
                 label=f"mu {mu:g} {phase}",
             )  # fmt: skip
-    axes[0].axhline(threshold, color="k", lw=0.8, ls=":")
+    lim = [float(first.tilt_deg.min()), float(first.tilt_deg.max())]
+    axes[0].plot(lim, lim, "k:", lw=0.8, label="surface = tilt")
     axes[0].set_xlabel("tilt (deg)")
-    axes[0].set_ylabel("mean grain speed at the end of the hold (m/s)")
+    axes[0].set_ylabel("surface angle at the end of the hold (deg)")
     axes[0].legend(fontsize=7)
     axes[0].grid(True, alpha=0.3)
-    axes[1].plot(table.mu, table.avalanche_deg, "o-", label="avalanche (surface angle)")
-    axes[1].plot(table.mu, table.stop_deg, "s-", label="stop (surface angle)")
-    axes[1].set_xlabel("mu")
-    axes[1].set_ylabel("angle (deg)")
-    axes[1].legend()
+    axes[1].axhline(threshold, color="k", lw=0.8, ls=":")
+    axes[1].set_xlabel("tilt (deg)")
+    axes[1].set_ylabel("mean grain speed at the end of the hold (m/s)")
+    axes[1].legend(fontsize=7)
     axes[1].grid(True, alpha=0.3)
+    for column, style, label in (
+        ("avalanche_deg", "o-", "avalanche (surface angle)"),
+        ("stop_deg", "s-", "stop (surface angle)"),
+    ):
+        axes[2].errorbar(ensemble.mu, ensemble[column], yerr=ensemble[f"{column}_sd"].fillna(0.0),
+                         fmt=style, capsize=3, label=label)  # fmt: skip
+    axes[2].set_xlabel("mu")
+    axes[2].set_ylabel("angle (deg)")
+    axes[2].legend()
+    axes[2].grid(True, alpha=0.3)
     return base.save_figure(fig, path)
 
 
