@@ -44,6 +44,8 @@ DERIVED_FILES = (
 #: Keys of the resolved configuration that may change when a run is resumed: the end,
 #: and the iteration cap (a step that hit the cap failed and was not written, so a run
 #: resumed with a larger cap takes the steps an uninterrupted run with it would have).
+#: The fallback list may grow at its end, for the same reason: the steps taken before
+#: never reached the backends added.
 _RESUMABLE_CHANGES = {"until", "steps", "max_iter"}
 
 
@@ -105,7 +107,7 @@ def run(
     if resume and path.exists():
         with RunFile(path) as old:
             _check_same(old.config, resolved, path)
-        writer = RunWriter.resume(path)
+        writer = RunWriter.resume(path, config=resolved)
         with RunFile(path) as rf:
             scene = rf.scene(-1)
             last = rf.frame(-1)
@@ -169,11 +171,19 @@ def _check_same(old: dict[str, Any], new: dict[str, Any], path: Path) -> None:
     for key in sorted(set(old_run) | set(new_run)):
         if key in _RESUMABLE_CHANGES:
             continue
+        if key == "fallback" and _extends(old_run.get(key), new_run.get(key)):
+            continue
         if not _equal(old_run.get(key), new_run.get(key)):
             raise RunFileError(
                 f"cannot resume {path}: run.{key} was {old_run.get(key)!r}, "
                 f"now {new_run.get(key)!r}"
             )
+
+
+def _extends(old: Any, new: Any) -> bool:
+    """Whether the list ``new`` is ``old`` with backends added at its end."""
+    old, new = list(old or []), list(new or [])
+    return len(new) >= len(old) and new[: len(old)] == old
 
 
 def _equal(a: Any, b: Any) -> bool:

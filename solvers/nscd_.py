@@ -44,8 +44,10 @@ cocd                      NSCD
                           (1 - relax) p_a``), ``symmetric`` (default False),
                           ``check_every`` (default 4), ``local``: ``"exact"``
                           (default) or ``"fb"`` (see below); ``newton``
-                          belongs to the local form (:mod:`solvers.local`):
-                          ``newton=True`` is refused here
+                          (default False): the sweeps finished by semismooth
+                          Newton, on ``W = H M^-1 H'`` formed once
+                          (:func:`solvers.local.nscd_local`; ``check_every``
+                          does not apply)
 ========================  =====================================================
 
 ``local="fb"`` is the hybrid local solver of Gauss-Seidel codes: Newton on the
@@ -97,11 +99,11 @@ def nscd_solve_problem(problem: ConicProblem, request: Request, **options: Any) 
     check_every = options.get("check_every", 4)
     if not isinstance(check_every, int) or check_every < 1:
         raise ProblemError(f"nscd: check_every must be a positive integer, got {check_every!r}")
-    if options.get("newton", False):
-        raise ProblemError(
-            "nscd: newton=True is an option of its local form (solvers.local.solve_local, "
-            "cocd problem solve and bench external/peers on a local problem file)"
-        )
+    newton = options.get("newton", False)
+    if not isinstance(newton, (bool, np.bool_)):
+        raise ProblemError(f"nscd: newton must be True or False, got {newton!r}")
+    if newton:
+        return _with_newton(problem, request, symmetric, relax, options)
     local_name = options.get("local", "exact")
     if local_name not in _LOCAL:
         raise ProblemError(f"nscd: local must be one of {sorted(_LOCAL)}, got {local_name!r}")
@@ -168,6 +170,37 @@ def nscd_solve_problem(problem: ConicProblem, request: Request, **options: Any) 
         local=local_name,
         local_newton=int(counts[0]),
         local_fallbacks=int(counts[1]),
+    )
+
+
+def _with_newton(
+    problem: ConicProblem, request: Request, symmetric: bool, relax: float, options: Any
+) -> Solution:
+    """``newton=True``: the local form's hybrid (sweeps, then semismooth Newton on the
+    Alart-Curnier function, :func:`solvers.local.nscd_local`) on ``W = H M^-1 H'`` and
+    ``b``, stopped on the local form's residual, which is ``coulomb_residual`` here (``W``
+    is symmetric)."""
+    from solvers.local import LocalData, nscd_local
+
+    start = time.perf_counter()
+    data = LocalData(problem.W, problem.b, problem.mu, problem.contact_dim)
+    setup = time.perf_counter() - start
+    local = {k: v for k, v in options.items() if k in ("local",)}
+    sol = nscd_local(
+        data, request, criterion="residual", relax=relax, symmetric=symmetric, newton=True,
+        **local,
+    )  # fmt: skip
+    p = np.asarray(sol.p, dtype=np.float64).reshape(problem.nc, problem.contact_dim)
+    extras = {k: v for k, v in sol.extras.items() if k != "native_status"}
+    return Solution.from_impulses(
+        problem,
+        p,
+        sol.status,
+        sol.iterations,
+        (setup + sol.setup_time, sol.solve_time),
+        "nscd",
+        sol.status.value,
+        **{**extras, "coulomb_residual": coulomb_residual(problem, p), "newton": True},
     )
 
 

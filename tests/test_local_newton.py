@@ -11,6 +11,7 @@ from conftest import assert_coulomb_law, external, random_local
 
 import solvers
 from cocd.errors import ProblemError
+from cocd.residuals import coulomb_residual
 from cocd.external import condense, solve_external
 from cocd.io import problems as problem_module
 from cocd.io import read_problem
@@ -139,9 +140,16 @@ def test_limits_and_bad_options():
     conic = GlobalProblem.from_conic(
         __import__("cocd.bench.runner", fromlist=["warmup_problem"]).warmup_problem(2)
     ).conic
-    with pytest.raises(ProblemError, match="newton=True is an option of its local form"):
-        solvers.solve(conic, "nscd", newton=True)
-    assert solvers.solve(conic, "nscd", newton=False).status == "optimal"
+    plain = solvers.solve(conic, "nscd", newton=False, tol=1e-10)
+    assert plain.status == "optimal"
+    # On a step problem newton=True runs the same hybrid on W = H M^-1 H' and b: the
+    # framework's Coulomb residual meets the tolerance and the velocities agree.
+    hybrid = solvers.solve(conic, "nscd", newton=True, tol=1e-10)
+    assert hybrid.status == "optimal" and hybrid.extras["newton"]
+    assert coulomb_residual(conic, hybrid.p) <= 1e-10
+    np.testing.assert_allclose(hybrid.u, plain.u, atol=1e-9)  # m/s
+    with pytest.raises(ProblemError, match="newton must be True or False"):
+        solvers.solve(conic, "nscd", newton="yes")
 
 
 # -- global problems on their condensed form -------------------------------------------

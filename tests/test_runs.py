@@ -200,6 +200,12 @@ def test_resume_refuses_another_scene_or_time_step(tmp_path):
     # A larger iteration cap (after a step that hit the smaller one) is allowed.
     capped = {**base, "run": {"steps": 3, "max_iter": 500}}
     assert run(parse_config(capped), tmp_path, resume=True).steps == 3
+    # So is a fallback added at the end of the list, not another list.
+    longer = {**base, "run": {"steps": 4, "max_iter": 500, "fallback": ["scs"]}}
+    assert run(parse_config(longer), tmp_path, resume=True).steps == 4
+    other = {**base, "run": {"steps": 5, "max_iter": 500, "fallback": ["ecos"]}}
+    with pytest.raises(RunFileError, match=r"run.fallback was \['scs'\], now \['ecos'\]"):
+        run(parse_config(other), tmp_path, resume=True)
 
 
 def test_resume_accepts_the_runs_own_small_overlaps(tmp_path):

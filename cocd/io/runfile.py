@@ -130,12 +130,16 @@ class RunWriter:
         return cls(path, f)
 
     @classmethod
-    def resume(cls, path: str | os.PathLike[str]) -> RunWriter:
+    def resume(
+        cls, path: str | os.PathLike[str], config: dict[str, Any] | None = None
+    ) -> RunWriter:
         """Reopen a run file for appending after its last complete frame.
 
         The complete frames and the statistics of the steps up to the last one
         are copied to a fresh file, which replaces ``path``: a file left by a
-        killed process cannot be reopened for writing as it is.
+        killed process cannot be reopened for writing as it is. ``config``: the
+        configuration the run goes on with (a later end, a larger iteration cap, a
+        longer fallback list), recorded in place of the old one.
         """
         path = Path(path)
         source = RunFile(path)
@@ -143,6 +147,8 @@ class RunWriter:
         try:
             with h5py.File(tmp, "w", libver="latest") as f:
                 _copy_prefix(source, f)
+                if config is not None:
+                    f.attrs["config"] = json.dumps(config)
         finally:
             source.close()
         os.replace(tmp, path)
