@@ -41,6 +41,7 @@ def test_an_ensemble_of_packings_gives_mean_and_spread(tmp_path):
     assert errors.iloc[0] != errors.iloc[1]  # two packings, two collapses
     assert row.seeds == 2 and np.isclose(row.profile_error, errors.mean())
     assert np.isclose(row.profile_error_sd, errors.std(ddof=1))
+    assert row.error_over_largest_dt == 1.0  # 2e-3 is the largest step
     fronts = table[table.dt == 1e-3].front_m / table[table.dt == 1e-3].d_mean_m
     ref = ensemble[(ensemble.dt == 1e-3) & (ensemble.t == 0.02)].iloc[0]
     assert np.isclose(ref.front_d, fronts.mean())
