@@ -107,6 +107,12 @@ def run(
     if resume and path.exists():
         with RunFile(path) as old:
             _check_same(old.config, resolved, path)
+            held = old.frame(-1)
+        if config.n_steps() < held.step:  # refused before the file records the new config
+            raise RunFileError(
+                f"{Path(out)} already holds {held.step} steps to t = {held.time:.4g} s, past "
+                f"the end asked for ({config.n_steps()} steps): give a later until, or more steps"
+            )
         writer = RunWriter.resume(path, config=resolved)
         with RunFile(path) as rf:
             scene = rf.scene(-1)
@@ -115,12 +121,6 @@ def run(
             previous = (last.keys, last.impulse[:, : rf.contact_dim]) if last.step > 0 else None
             frames = rf.n_frames
         start_step = last.step
-        if config.n_steps() < start_step:
-            writer.close()
-            raise RunFileError(
-                f"{Path(out)} already holds {start_step} steps to t = {last.time:.4g} s, past "
-                f"the end asked for ({config.n_steps()} steps): give a later until, or more steps"
-            )
     else:
         if scene is None:
             scene = build_scene(config, source)

@@ -140,6 +140,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         ("{{demo.speed[t=0.1]}}", "has no column 'speed'"),
         ("{{other.error}}", "no table"),
         ("{{demo.error[time=0.1]}}", "bad condition"),
+        ("{{max demo.error[case=c]}}", "no row matches"),
+        ("{{demo.error[t=0.1]:}}", "not a placeholder cocd can read"),
     ):
         (notes / "demo.md").write_text(f"A number: {bad}.")
         result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])

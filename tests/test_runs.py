@@ -206,6 +206,12 @@ def test_resume_refuses_another_scene_or_time_step(tmp_path):
     other = {**base, "run": {"steps": 5, "max_iter": 500, "fallback": ["ecos"]}}
     with pytest.raises(RunFileError, match=r"run.fallback was \['scs'\], now \['ecos'\]"):
         run(parse_config(other), tmp_path, resume=True)
+    # A refused resume (an end before the file's) leaves the file's configuration alone.
+    short = {**base, "run": {"steps": 1, "max_iter": 500, "fallback": ["scs", "ecos"]}}
+    with pytest.raises(RunFileError, match="already holds 4 steps"):
+        run(parse_config(short), tmp_path, resume=True)
+    with RunFile(tmp_path / "run.h5") as rf:
+        assert rf.config["run"]["fallback"] == ["scs"] and rf.config["run"]["steps"] == 4
 
 
 def test_resume_accepts_the_runs_own_small_overlaps(tmp_path):

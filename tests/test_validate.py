@@ -353,7 +353,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["erodible", "--layers", "0,-3"], "layer thicknesses must be >= 0"),
         (["erodible", "--slopes", "95"], "slopes must be in [0, 90)"),
         (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
-        (["runout", "--aspects", "1,2,3,4"], "at least 6 aspect ratios"),
+        (["runout", "--aspects", "1,2,3,4"], "at least 6 distinct aspect ratios"),
+        (["runout", "--aspects", "1,1,1,1,1,1"], "at least 6 distinct aspect ratios"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
     ):
         result = runner.invoke(app, ["validate", *args, *out])

@@ -157,6 +157,8 @@ def fit_two_power_laws(
     and ``k_all``, ``c_all`` (one law through every point), and for each exponent
     ``k_*_ci``, the half-width of its 95 % confidence interval (Student's t on the
     slope's standard error; NaN for two points). NaN where a side has too few points.
+    The intervals take the points as independent and the split as given, not chosen
+    from them: they are a lower bound on the uncertainty.
     """
     av = np.asarray(a, dtype=float)
     yv = np.asarray(y, dtype=float)
@@ -165,6 +167,8 @@ def fit_two_power_laws(
     if not good:
         raise CocdError("power-law fits need at least two positive, finite (a, y) pairs")
     x, z = np.log(av), np.log(yv)
+    if np.unique(x).size < 2:
+        raise CocdError("power-law fits need at least two distinct a")
     order = np.argsort(x, kind="stable")
     x, z = x[order], z[order]
     k_all, c_all, ci_all = _line(x, z)

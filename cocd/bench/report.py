@@ -321,19 +321,27 @@ def fill_note(text: str, out: Path, name: str = "note") -> str:
             keep &= _matches(frame[key], want)
         cells = frame.loc[keep, column]
         agg = match.group("agg")
+        if agg and agg != "count" and not len(cells):
+            raise CocdError(f"{where}: no row matches")
         if agg:
             cell: Any = len(cells) if agg == "count" else getattr(cells, agg)()
         elif len(cells) != 1:
             raise CocdError(f"{where}: {len(cells)} rows match, not one")
         else:
             cell = cells.iloc[0]
+        if pd.isna(cell):
+            raise CocdError(f"{where}: the cell is empty")
         fmt = match.group("fmt") or (".3g" if isinstance(cell, float) else "")
         try:
             return format(cell, fmt)
         except (TypeError, ValueError):
             raise CocdError(f"{where}: format {fmt!r} does not apply to {cell!r}") from None
 
-    return _PLACEHOLDER.sub(value, text)
+    filled = _PLACEHOLDER.sub(value, text)
+    left = re.search(r"\{\{.*?\}\}", filled, flags=re.S)
+    if left:
+        raise CocdError(f"{name}: {left.group(0)} is not a placeholder cocd can read")
+    return filled
 
 
 def _matches(column: pd.Series, want: str) -> pd.Series:

@@ -207,6 +207,7 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
     that a case is measured again without the run file (every frame) or a rerun."""
     import json
 
+    (folder / "measured.json").unlink(missing_ok=True)  # the old record goes first
     arrays = {
         "times": series.times,
         "front": series.front,

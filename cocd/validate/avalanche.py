@@ -96,7 +96,7 @@ class Settings(RunSettings):
     hold: float = option(0.15, "Seconds held at each tilt.")
     dt: float = option(1e-3, "Time step (s).")
     v_flow: float = option(0.01, "Mean grain speed (m/s) above which the layer flows.")
-    seeds: int = option(1, "Packings: each layer is built with seeds 0 .. seeds-1.")
+    seeds: int = option(1, "Packings: the layer built with seeds 0 .. seeds-1.")
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:

@@ -37,7 +37,9 @@ class Settings(RunSettings):
     dt: float = option(1e-3, "Time step (s).")
     mu: float = option(0.9, "Friction coefficient (grains and walls).")
     bed_length: float = option(3.0, "Bed length (m).")
-    seeds: int = option(1, "Packings: the column is built with seeds 0 .. seeds-1.")
+    seeds: int = option(
+        1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1 (same lattice sites)."
+    )
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
@@ -50,7 +52,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     Returns the table written to ``erodible.csv``, one row per (slope, layer).
     """
     n = base.positive_int("n", cfg.n)
-    slopes = [float(s) for s in cfg.slopes]
+    slopes = sorted({float(s) for s in cfg.slopes})
     if not slopes or any(not (0.0 <= s < 90.0) for s in slopes):
         raise CocdError(f"slopes must be in [0, 90) degrees, got {slopes!r}")
     layers = [float(h) for h in cfg.layers_d]
@@ -78,7 +80,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     for seed in range(seeds):
         for slope in slopes:
             for layer in layers:
-                label = base.seed_label(f"n{n}_slope{slope:g}_layer{layer:g}d", seed)
+                label = base.seed_label(
+                    f"n{n}_slope{slope:g}_layer{layer:g}d_bed{bed_length:g}m", seed
+                )
                 params = base.base_params(
                     n,
                     cfg.mu,
@@ -140,9 +144,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "Layers in mean diameters d of the column's grains; `runout_m` = front travel "
         "r_f(t) - r_f(0) of the flow (surface_front: entrained layer grains count), r_f(t) "
         f"averaged over the last {base.RUNOUT_WINDOW:g} of the run; `front_m`: the front at "
-        "the end; `front_R0`: front_m / front0_m; `runout_ratio`: against the same packing "
-        "and slope with no layer; `runout_over_R0`: runout_m / front0_m, R0 being the "
-        "column's initial length as measured; `seed`: the packing; `n_layer`: grains in the "
+        "the end; `front_R0`: r_f(t) (averaged as for the runout) / front0_m; "
+        "`runout_ratio`: against the same packing and slope with no layer; "
+        "`runout_over_R0`: runout_m / front0_m, R0 being the column's initial length as "
+        "measured; `seed`: the packing; `n_layer`: grains in the "
         "layer; `reached_end`: the front came within two diameters of the bed's end "
         "(runout cut short)."
     )

@@ -36,11 +36,13 @@ class Settings(RunSettings):
     nscd_max_iter: int = option(100000, "Sweeps allowed to nscd per step.")
     nscd_fallback: tuple[str, ...] = option(
         ("nscd:newton=True",),
-        "Backends tried when an nscd step fails (comma-separated): they solve the same "
-        "non-convex law.",
+        "Backends tried when an nscd step fails (comma-separated), with their own options "
+        "(not --nscd-symmetric): they solve the same non-convex law.",
         kind="names",
     )
-    seeds: int = option(1, "Packings: the column is built with seeds 0 .. seeds-1.")
+    seeds: int = option(
+        1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1 (same lattice sites)."
+    )
     nscd_symmetric: bool = option(
         True,
         "Alternate nscd's sweep direction or not.",

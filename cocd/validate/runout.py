@@ -59,7 +59,9 @@ class Settings(RunSettings):
     dt: float = option(1e-3, "Time step (s).")
     rest_T: float = option(12.0, "Run time in units of sqrt(H0/g).", flag="--rest-T")
     min_time: float = option(1.0, "Shortest run (s), whatever the aspect ratio.")
-    seeds: int = option(1, "Packings: each column is built with seeds 0 .. seeds-1.")
+    seeds: int = option(
+        1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1 (same lattice sites)."
+    )
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
@@ -70,9 +72,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     enough for the runout, and runs for ``max(min_time, rest_T sqrt(H0 / g))``
     seconds. Returns the table written to ``runout_scaling.csv``, one row per ``a``.
     """
-    aspects = sorted(base.positive_list("aspects", cfg.aspects))
+    aspects = sorted(set(base.positive_list("aspects", cfg.aspects)))
     if len(aspects) < 6:
-        raise CocdError("scaling needs at least 6 aspect ratios (three per regime)")
+        raise CocdError("scaling needs at least 6 distinct aspect ratios (three per regime)")
     seeds = base.positive_int("seeds", cfg.seeds)
     area, diameter, dt, rest_T, min_time = base.positive_list(
         "area, diameter, dt, rest_T, min_time",
@@ -169,8 +171,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         title="Power-law fits of runout and height against aspect ratio",
         intro="`k_low`, `c_low`: `y = c a^k` for `a < a_c`; `k_high`, `c_high` above; "
         "`k_all`: one law through every point; `k_*_ci`: half-width of the exponent's 95 % "
-        "confidence interval; `n_low`, `n_high`: aspect ratios on each side. Every packing's "
-        "point is fitted.",
+        "confidence interval (points taken as independent and the split as given: a lower "
+        "bound on the uncertainty); `n_low`, `n_high`: aspect ratios on each side. Every "
+        "packing's point is fitted.",
     )
     files += base.report.write_table(
         out,

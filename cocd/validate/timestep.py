@@ -34,7 +34,9 @@ class Settings(RunSettings):
     times: tuple[float, ...] = option((0.02, 0.06, 0.3), "Profile times (s).", kind="floats")
     mu: float = option(0.3, "Friction coefficient (grains and walls).")
     tol: float = option(1e-8, "Tolerance of the convex backend.")
-    seeds: int = option(1, "Packings: the column is built with seeds 0 .. seeds-1.")
+    seeds: int = option(
+        1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1 (same lattice sites)."
+    )
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
