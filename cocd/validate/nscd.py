@@ -81,6 +81,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     }
     rows: list[dict[str, Any]] = []
     first: list[base.CollapseSeries] = []
+    every: list[list[base.CollapseSeries]] = []
     for seed in range(seeds):
         runs = []
         for how, extra in (
@@ -112,6 +113,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 )
             )
         first = first or runs
+        every.append(runs)
         rows += _rows(runs, times, period, seed)
     table = pd.DataFrame(rows)
     ensemble = base.ensemble(table, ["t", "t_over_T"], _ENSEMBLE)
@@ -131,7 +133,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             first,
             [f"COCD ({cfg.solver}, tol {cfg.tol:g})", f"NSCD (nscd, tol {cfg.nscd_tol:g})"],
         ),
-        _front_figure(out / "nscd_front.png", table, period, cfg),
+        _front_figure(out / "nscd_front.png", every, period, cfg),
     ]
     fallbacks = int(table.groupby("seed").fallback_steps_nscd.first().sum())
     summary = _summary(ensemble, seeds, first[0], period, dt, cfg, fallbacks)
@@ -202,21 +204,29 @@ def _rows(runs: list[Any], times: list[float], period: float, seed: int) -> list
     return rows
 
 
-def _front_figure(path: Path, table: pd.DataFrame, period: float, cfg: Settings) -> Path:
-    """Fronts on the seed's axes, ``(r_f - R0) / R0`` against ``t / sqrt(H0/g)``: mean and
-    spread over the packings at the profile times."""
+def _front_figure(
+    path: Path, every: list[list[base.CollapseSeries]], period: float, cfg: Settings
+) -> Path:
+    """Fronts on the seed's axes, ``(r_f - R0) / R0`` against ``t / sqrt(H0/g)``, every
+    saved frame: the mean over the packings with a band of one sample standard deviation."""
     plt = base.pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
-    tab = table.assign(
-        cocd=(table.front_cocd_m - table.front0_m) / table.front0_m,
-        nscd=(table.front_nscd_m - table.front0_m) / table.front0_m,
+    for k, name in ((0, f"COCD ({cfg.solver})"), (1, "NSCD (nscd)")):
+        runs = [pair[k] for pair in every]
+        t = runs[0].times
+        curves = np.array(
+            [np.interp(t, s.times, (s.front - s.front[0]) / s.front[0]) for s in runs]
+        )
+        mean = curves.mean(axis=0)
+        (line,) = ax.plot(t / period, mean, label=name)
+        if len(runs) > 1:
+            sd = curves.std(axis=0, ddof=1)
+            ax.fill_between(t / period, mean - sd, mean + sd, color=line.get_color(), alpha=0.25)
+    seeds = len(every)
+    ax.set_title(
+        f"N = {every[0][0].n_grains}, mu = {cfg.mu:g}, {seeds} packing{'s' if seeds > 1 else ''}"
+        + (" (mean, band: +- sd)" if seeds > 1 else "")
     )
-    grouped = tab.groupby("t_over_T")
-    for column, name in (("cocd", f"COCD ({cfg.solver})"), ("nscd", "NSCD (nscd)")):
-        mean, sd = grouped[column].mean(), grouped[column].std(ddof=1).fillna(0.0)
-        ax.errorbar(mean.index, mean, yerr=sd, marker="o", capsize=3, label=name)
-    seeds = table.seed.nunique()
-    ax.set_title(f"mu = {cfg.mu:g}, {seeds} packing{'s' if seeds > 1 else ''} (mean +- sd)")
     ax.set_xlabel("t / sqrt(H0 / g)")
     ax.set_ylabel("(r_f - R0) / R0")
     ax.grid(True, alpha=0.3)
