@@ -333,9 +333,7 @@ def test_profile_error_and_thresholds():
     # The same runs judged with other at-rest criteria.
     from cocd.studies._stability_report import criterion_sensitivity
 
-    runs = summary.assign(
-        max_energy_ratio=[1e-3, 1e-6, 1e-8, 1e-9, 1e-9], note=["", "", "", "", "budget"]
-    )
+    runs = summary.assign(max_energy_ratio=[1e-3, 1e-6, 1e-8, 1e-9, 1e-9])
     sens = criterion_sensitivity(runs, (1e-5, 1e-7)).set_index(["threshold", "solver"])
     assert sens.loc[(1e-5, "a"), "largest_eps_at_rest"] == 1e-2
     assert sens.loc[(1e-7, "a"), "largest_eps_at_rest"] == 1e-3

@@ -118,10 +118,8 @@ CRITERIA = (1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
 
 def criterion_sensitivity(summary: pd.DataFrame, thresholds: tuple[float, ...]) -> pd.DataFrame:
     """:func:`stability_thresholds` of the same runs judged at rest with each threshold on
-    ``max_energy_ratio`` (a run stopped early or with a note is never at rest)."""
-    finished = (summary.steps_done == summary.steps_asked) & (
-        summary.note.fillna("").astype(str) == ""
-    )
+    ``max_energy_ratio`` (a run stopped early is never at rest)."""
+    finished = summary.steps_done == summary.steps_asked
     parts = []
     for value in thresholds:
         judged = summary.assign(at_rest=finished & (summary.max_energy_ratio < value))
