@@ -232,7 +232,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     resolved = [
         f"{r.mu:g}"
         for _, r in ensemble.iterrows()
-        if r.hysteresis_deg > step_deg
+        if r.hysteresis_deg > 2.0 * step_deg
         and (not np.isfinite(r.hysteresis_deg_sd) or r.hysteresis_deg > 2.0 * r.hysteresis_deg_sd)
     ]
     summary = (
@@ -240,7 +240,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"wide, {seeds} packing{'s' if seeds > 1 else ''}, tilted in {step_deg:g} deg steps "
         f"held {hold:g} s, `{cfg.solver}` at tol {cfg.tol:g}; flow when the mean speed exceeds "
         f"{v_flow:g} sqrt(g d). Avalanche and stop angles (mean +- spread over the packings): "
-        f"**{angles}**. The hysteresis exceeds both one tilt step and twice its spread for mu "
+        f"**{angles}**. Both angles are read at tilt steps, so a hysteresis is resolved when it "
+        "exceeds two tilt steps and twice its spread: for mu "
         f"= {', '.join(resolved) if resolved else 'none'}. A DEM shows avalanche > stop, both "
         "growing with friction; seed 001's continuum model, with a single friction angle, "
         "starts and stops at the same angle."
