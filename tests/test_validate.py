@@ -211,6 +211,7 @@ def test_runout_grows_with_the_aspect_ratio(tmp_path):
         aspects=[0.5, 0.7, 1.0, 1.4, 2.0, 4.0],
         area=0.004,
         diameter=0.01,
+        dt=2e-3,
         solver="clarabel",
         rest_T=8.0,
         min_time=0.5,
