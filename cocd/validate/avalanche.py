@@ -241,10 +241,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"held {hold:g} s, `{cfg.solver}` at tol {cfg.tol:g}; flow when the mean speed exceeds "
         f"{v_flow:g} sqrt(g d). Avalanche and stop angles (mean +- spread over the packings): "
         f"**{angles}**. Both angles are read at tilt steps, so a hysteresis is resolved when it "
-        "exceeds two tilt steps and twice its spread: for mu "
-        f"= {', '.join(resolved) if resolved else 'none'}. A DEM shows avalanche > stop, both "
-        "growing with friction; seed 001's continuum model, with a single friction angle, "
-        "starts and stops at the same angle."
+        "exceeds two tilt steps and twice its spread: "
+        f"{'for mu = ' + ', '.join(resolved) if resolved else 'for no mu'}. "
+        "A DEM shows avalanche > stop, both growing with friction; seed 001's continuum "
+        "model, with a single friction angle, starts and stops at the same angle."
     )
     intro = (
         "`avalanche_tilt_deg`: the first tilt at whose end the layer flows; "
