@@ -174,17 +174,14 @@ def _ensemble(table: pd.DataFrame) -> pd.DataFrame:
     return out.sort_values(["dt", "t"], ascending=[False, True])
 
 
-_pm = base.pm
-
-
 def _summary(ensemble: pd.DataFrame, dts: list[float], seeds: int, ref: Any, cfg: Any) -> str:
     """The summary, every number taken from ``ensemble``."""
     last = max(ensemble.t)
     at_last = ensemble[ensemble.t == last].set_index("dt")
     parts = [
-        f"dt = {dt:g} s: {_pm(at_last.loc[dt], 'profile_error')} "
-        f"({_pm(at_last.loc[dt], 'profile_error_4d')} on 4 d), front "
-        f"{_pm(at_last.loc[dt], 'front_d')} d"
+        f"dt = {dt:g} s: {base.pm(at_last.loc[dt], 'profile_error')} "
+        f"({base.pm(at_last.loc[dt], 'profile_error_4d')} on 4 d), front "
+        f"{base.pm(at_last.loc[dt], 'front_d')} d"
         for dt in dts[:-1]
     ]
     text = (
@@ -193,7 +190,7 @@ def _summary(ensemble: pd.DataFrame, dts: list[float], seeds: int, ref: Any, cfg
         f"tol {cfg.tol:g}, dt = {', '.join(f'{d:g}' for d in dts)} s. At t = {last:g} s, "
         f"profile error against dt = {dts[-1]:g} s (mean +- spread over the packings): "
         + "; ".join(parts)
-        + f"; front of dt = {dts[-1]:g} s: {_pm(at_last.loc[dts[-1]], 'front_d')} d."
+        + f"; front of dt = {dts[-1]:g} s: {base.pm(at_last.loc[dts[-1]], 'front_d')} d."
     )
     if 1e-3 in at_last.index and 1e-4 in at_last.index and 1e-4 != dts[-1]:
         ratio = at_last.loc[1e-4, "profile_error"] / at_last.loc[1e-3, "profile_error"]
