@@ -358,6 +358,36 @@ def pm(row: Any, column: str, digits: int = 3) -> str:
     return text + ("" if not np.isfinite(sd) else f" +- {sd:.{digits}g}")
 
 
+def seeded_collapse(
+    out: Path,
+    case: str,
+    label: str,
+    seed: int,
+    params: dict[str, Any],
+    how: RunSettings,
+    *,
+    what: str = "",
+    progress: Callable[[str], Any] = print,
+    **kwargs: Any,
+) -> CollapseSeries:
+    """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
+
+    ``what`` describes the run in the progress line (default: backend and tolerance);
+    ``kwargs`` go to :func:`collapse_series` (``dt`` and ``until`` among them).
+    """
+    label = seed_label(label, seed)
+    what = what or f"{how.solver}, tol {how.tol:g}"
+    progress(f"{case}: {label} ({what}) to t = {kwargs['until']:g} s")
+    return collapse_series(
+        out / "runs" / case / label,
+        seed_params(params, seed),
+        how,
+        label=label,
+        progress=progress,
+        **kwargs,
+    )
+
+
 def seed_label(label: str, seed: int) -> str:
     """A run's label for packing ``seed``: seed 0 keeps the plain label (earlier runs resume)."""
     return label + (f"_s{seed}" if seed else "")

@@ -80,9 +80,6 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     for seed in range(seeds):
         for slope in slopes:
             for layer in layers:
-                label = base.seed_label(
-                    f"n{n}_slope{slope:g}_layer{layer:g}d_bed{bed_length:g}m", seed
-                )
                 params = base.base_params(
                     n,
                     cfg.mu,
@@ -90,14 +87,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                     erodible_thickness=layer * d_mean,
                     bed_length=bed_length,
                 )
-                progress(
-                    f"erodible: {label} (layer {layer * d_mean * 1e3:.1f} mm) to t = {until:g} s"
-                )
-                s = base.collapse_series(
-                    out / "runs" / "erodible" / label,
-                    base.seed_params(params, seed),
+                s = base.seeded_collapse(
+                    out,
+                    "erodible",
+                    f"n{n}_slope{slope:g}_layer{layer:g}d_bed{bed_length:g}m",
+                    seed,
+                    params,
                     cfg,
-                    label=label,
+                    what=f"layer {layer * d_mean * 1e3:.1f} mm",
                     dt=dt,
                     until=until,
                     frame_dt=frame_dt,

@@ -96,14 +96,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             label = f"n{n}_{how.solver.replace(':', '-')}"
             if how.solver == "nscd" and cfg.nscd_symmetric:
                 label += "-symmetric"
-            label = base.seed_label(label, seed)
-            progress(f"nscd: {label} (tol {how.tol:g}) to t = {max(times):g} s")
             runs.append(
-                base.collapse_series(
-                    out / "runs" / "nscd" / label,
-                    base.seed_params(params, seed),
+                base.seeded_collapse(
+                    out,
+                    "nscd",
+                    label,
+                    seed,
+                    params,
                     how,
-                    label=label,
                     dt=dt,
                     until=max(times),
                     frame_dt=frame_dt,

@@ -104,7 +104,6 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         # Room for the runout: the 2D laws give (Lf - L0)/L0 of about 2 a for small a,
         # about 3 a^(2/3) beyond; twice that, and at least 4 L0.
         bed = L0 * (1.0 + max(4.0, 2.0 * max(2.0 * a, 3.0 * a ** (2.0 / 3.0))))
-        label = base.seed_label(f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}", seed)
         params = {
             "dim": 2,
             "diameter": diameter,
@@ -114,12 +113,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             "bed_length": bed,
             "mu": cfg.mu,
         }
-        progress(f"scaling: {label} (L0 = {L0:.3f} m, H0 = {H0:.3f} m) to t = {until:g} s")
-        s = base.collapse_series(
-            out / "runs" / "scaling" / label,
-            base.seed_params(params, seed),
+        s = base.seeded_collapse(
+            out,
+            "scaling",
+            f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}",
+            seed,
+            params,
             cfg,
-            label=label,
+            what=f"L0 = {L0:.3f} m, H0 = {H0:.3f} m",
             dt=dt,
             until=until,
             frame_dt=frame_dt,

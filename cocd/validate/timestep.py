@@ -65,14 +65,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     for seed in range(seeds):
         series = []
         for dt in dts:
-            label = base.seed_label(f"n{n}_dt{dt:.0e}", seed)
-            progress(f"timestep: {label} ({cfg.solver}, tol {cfg.tol:g}) to t = {max(times):g} s")
             series.append(
-                base.collapse_series(
-                    out / "runs" / "timestep" / label,
-                    base.seed_params(params, seed),
+                base.seeded_collapse(
+                    out,
+                    "timestep",
+                    f"n{n}_dt{dt:.0e}",
+                    seed,
+                    params,
                     cfg,
-                    label=label,
                     dt=dt,
                     until=max(times),
                     frame_dt=frame_dt,
