@@ -281,6 +281,10 @@ def test_two_power_laws_are_recovered():
     noisy = fit_two_power_laws(aa, yy * np.exp(rng.normal(0.0, 0.05, aa.size)))
     assert abs(noisy["k_low"] - 1.0) < noisy["k_low_ci"] < 0.3
     assert abs(noisy["k_high"] - 2 / 3) < noisy["k_high_ci"] < 0.3
+    assert noisy["p_two_laws"] < 0.01  # the bend is real
+    # One law with the same noise: the best split is not told from the scatter.
+    straight = fit_two_power_laws(aa, 2.0 * aa**0.8 * np.exp(rng.normal(0.0, 0.05, aa.size)))
+    assert straight["p_two_laws"] > 0.05
     few = fit_two_power_laws([1.0, 2.0, 3.0, 4.0, 5.0], [1.0, 2.0, 3.0, 3.5, 4.0])
     assert math.isnan(few["a_c"]) and math.isfinite(few["k_all_ci"])
 

@@ -158,7 +158,11 @@ def fit_two_power_laws(
     ``k_*_ci``, the half-width of its 95 % confidence interval (Student's t on the
     slope's standard error; NaN for two points). NaN where a side has too few points.
     The intervals take the points as independent and the split as given, not chosen
-    from them: they are a lower bound on the uncertainty.
+    from them: they are a lower bound on the uncertainty. ``p_two_laws`` is the F-test's
+    p-value of the two laws against the one (F ratio of the residuals, its null
+    distribution drawn with the split searched afresh, so choosing the split from the
+    data is accounted for): small when the bend is real, large when the data do not
+    tell two regimes from one.
     """
     av = np.asarray(a, dtype=float)
     yv = np.asarray(y, dtype=float)
@@ -187,7 +191,7 @@ def fit_two_power_laws(
     if best is None:
         out.update(
             a_c=math.nan, k_low=math.nan, c_low=math.nan, k_high=math.nan, c_high=math.nan,
-            k_low_ci=math.nan, k_high_ci=math.nan,
+            k_low_ci=math.nan, k_high_ci=math.nan, p_two_laws=math.nan,
         )  # fmt: skip
         return out
     low = x < best[1]
@@ -201,8 +205,58 @@ def fit_two_power_laws(
         c_high=math.exp(c2),
         k_low_ci=ci1,
         k_high_ci=ci2,
+        p_two_laws=_f_test(x, z, min_points),
     )
     return out
+
+
+def _f_test(x: np.ndarray, z: np.ndarray, min_points: int, draws: int = 999) -> float:
+    """p-value of the best two-line split against one line (``x`` sorted).
+
+    The statistic is the F ratio of the residuals; its null distribution is drawn by a
+    parametric bootstrap (one line plus Gaussian scatter of the fitted size, the split
+    searched afresh each time), so that choosing the split from the data is accounted
+    for. Fixed random seed: the same data give the same p.
+    """
+
+    distinct = np.unique(x)
+    cuts = [
+        0.5 * (distinct[j - 1] + distinct[j])
+        for j in range(min_points, distinct.size - min_points + 1)
+    ]
+    dof = x.size - 4
+    if not cuts or dof <= 0:
+        return math.nan
+
+    def residual_maker(mask: np.ndarray) -> np.ndarray:
+        """I - H for the least-squares line through the points of ``mask``."""
+        design = np.column_stack([np.ones(int(mask.sum())), x[mask]])
+        return np.eye(design.shape[0]) - design @ np.linalg.pinv(design)
+
+    whole = residual_maker(np.ones(x.size, dtype=bool))
+    parts = [(x < c, residual_maker(x < c), residual_maker(x >= c)) for c in cuts]
+
+    def statistic(zs: np.ndarray) -> np.ndarray:
+        """F ratio of the best split, for each row of ``zs``."""
+        one = np.sum((zs @ whole) ** 2, axis=1)
+        two = np.min(
+            [
+                np.sum((zs[:, low] @ m_low) ** 2, axis=1)
+                + np.sum((zs[:, ~low] @ m_high) ** 2, axis=1)
+                for low, m_low, m_high in parts
+            ],
+            axis=0,
+        )
+        return ((one - two) / 2.0) / np.maximum(two / dof, 1e-300)
+
+    observed = float(statistic(z[None, :])[0])
+    sigma = math.sqrt(float(np.sum((z @ whole) ** 2)) / (x.size - 2))
+    if sigma == 0.0:
+        return 1.0
+    line = z - z @ whole  # the fitted line's values
+    rng = np.random.default_rng(0)
+    null = statistic(line + rng.normal(0.0, sigma, (draws, x.size)))
+    return float((1 + np.sum(null >= observed)) / (1 + draws))
 
 
 def _line(x: np.ndarray, z: np.ndarray) -> tuple[float, float, float]:

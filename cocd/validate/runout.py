@@ -164,7 +164,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         ]
     )
     ensemble = base.ensemble(table, ["a"], ["runout", "Hf_over_H0"])
-    figures = [_figure(out / "runout_scaling.png", table, fit_r, fit_h)]
+    figures = [_figure(out / "runout_scaling.png", table, fit_r, fit_h, cfg.mu)]
     files = base.report.write_table(
         out,
         "runout_scaling_fit",
@@ -173,8 +173,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         intro="`k_low`, `c_low`: `y = c a^k` for `a < a_c`; `k_high`, `c_high` above; "
         "`k_all`: one law through every point; `k_*_ci`: half-width of the exponent's 95 % "
         "confidence interval (points taken as independent and the split as given: a lower "
-        "bound on the uncertainty); `n_low`, `n_high`: aspect ratios on each side. Every "
-        "packing's point is fitted.",
+        "bound on the uncertainty); `n_low`, `n_high`: aspect ratios on each side; "
+        "`p_two_laws`: p-value of the two laws against the one (F ratio, its null drawn "
+        "with the split searched afresh; small: the bend is real). Every packing's point "
+        "is fitted.",
     )
     files += base.report.write_table(
         out,
@@ -188,6 +190,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     def law(fit: dict[str, float], side: str) -> str:
         return f"a^({fit[f'k_{side}']:.2f} +- {fit[f'k_{side}_ci']:.2f})"
 
+    def bend(fit: dict[str, float], name: str) -> str:
+        p = fit["p_two_laws"]
+        if not math.isfinite(p):
+            return f"{name}, too few ratios to test"
+        verdict = "a bend" if p < 0.05 else "no bend told from the scatter"
+        return f"{name} p = {p:.2g} ({verdict})"
+
     summary = (
         f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, mu = {cfg.mu:g}, "
         f"{table.n_grains.min()} to {table.n_grains.max()} discs), {len(aspects)} aspect "
@@ -198,7 +207,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"{law(fit_r, 'high')} above ({fit_r['n_high']:.0f})**; H0/Hf ~ **{law(fit_h, 'low')} "
         f"below a = {fit_h['a_c']:.2g} ({fit_h['n_low']:.0f} ratios), {law(fit_h, 'high')} "
         f"above ({fit_h['n_high']:.0f})**; one law through every point: runout "
-        f"{law(fit_r, 'all')}, H0/Hf {law(fit_h, 'all')}. "
+        f"{law(fit_r, 'all')}, H0/Hf {law(fit_h, 'all')}. Two laws against one: "
+        f"{bend(fit_r, 'runout')}; {bend(fit_h, 'H0/Hf')}. "
         "Seed 001 quotes H0/Hf ~ a^0.69 in wide channels and a^0.5 in narrow ones, with a "
         "regime change near a = 7 in the wide one; 2D contact dynamics (Staron and Hinch "
         "2005) gives a runout linear in a at small a and growing as about a^(2/3) above a of "
@@ -232,16 +242,32 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
 
 
 def _figure(
-    path: Path, table: pd.DataFrame, fit_r: dict[str, float], fit_h: dict[str, float]
+    path: Path,
+    table: pd.DataFrame,
+    fit_r: dict[str, float],
+    fit_h: dict[str, float],
+    mu: float,
 ) -> Path:
+    """Runout and H0/Hf against a: every packing's point, the mean +- sd, the fitted laws."""
     plt = base.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     a = table.a.to_numpy()
-    for ax, y, fit, label in (
-        (axes[0], table.runout.to_numpy(), fit_r, "(Lf - L0) / L0"),
-        (axes[1], 1.0 / table.Hf_over_H0.to_numpy(), fit_h, "H0 / Hf"),
+    table = table.assign(H0_over_Hf=1.0 / table.Hf_over_H0)
+    stats = table.groupby("a").agg(["mean", "std"])
+    seeds = table.seed.nunique()
+    for ax, column, fit, label in (
+        (axes[0], "runout", fit_r, "(Lf - L0) / L0"),
+        (axes[1], "H0_over_Hf", fit_h, "H0 / Hf"),
     ):
-        ax.loglog(a, y, "o", label="cocd")
+        ax.loglog(a, table[column], ".", color="0.6", label="each packing")
+        ax.errorbar(
+            stats.index,
+            stats[column]["mean"],
+            yerr=stats[column]["std"].fillna(0.0),
+            fmt="o",
+            capsize=3,
+            label=f"mean +- sd ({seeds} packing{'s' if seeds > 1 else ''})",
+        )
         if math.isfinite(fit["a_c"]):
             lo = np.geomspace(a.min(), fit["a_c"], 20)
             hi = np.geomspace(fit["a_c"], a.max(), 20)
@@ -250,10 +276,12 @@ def _figure(
         ax.set_xlabel("a = H0 / L0")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
     ref = np.geomspace(a.min(), a.max(), 20)
-    axes[1].loglog(ref, (fit_h["c_all"]) * ref**0.69, "k:", label="a^0.69 (seed 001)")
-    axes[1].legend()
+    axes[1].loglog(ref, (fit_h["c_all"]) * ref**0.69, "k:", label="a^0.69 (seed 001, wide)")
+    for ax in axes:
+        ax.legend(fontsize="small")
+    low, high = table.n_grains.min(), table.n_grains.max()
+    fig.suptitle(f"2D collapses, {low if low == high else f'{low} to {high}'} discs, mu = {mu:g}")
     return base.save_figure(fig, path)
 
 
