@@ -50,6 +50,15 @@ def test_an_ensemble_of_packings_gives_mean_and_spread(tmp_path):
     assert f"dt = 0.002 s: {g(row.profile_error)} +- {g(row.profile_error_sd)}" in summary
     assert f"front of dt = 0.001 s: {g(ref.front_d)} +- {g(ref.front_d_sd)} d" in summary
     assert (tmp_path / "runs" / "timestep" / "n30_dt1e-03_s1" / "run.h5").exists()
+    # Each packing's largest step has a twin at another solver tolerance: the two drift
+    # apart by a measured, non-zero amount (the flow's sensitivity), smaller than the
+    # time step's own error this early; the other steps have no twin.
+    twins = table[table.dt == 2e-3].twin_error
+    assert (twins > 0).all() and (twins < table[table.dt == 2e-3].profile_error).all()
+    assert table[table.dt == 1e-3].twin_error.isna().all()
+    assert np.isclose(row.twin_error, twins.mean())
+    assert "differing only in the solver's tolerance (1e-08 and 1e-09)" in summary
+    assert (tmp_path / "runs" / "timestep" / "n30_dt2e-03_tol1e-09_s1" / "run.h5").exists()
 
 
 def test_smaller_time_steps_converge(tmp_path):
@@ -66,8 +75,9 @@ def test_smaller_time_steps_converge(tmp_path):
     for name in ("timestep.csv", "timestep.md", "timestep_profiles.png", "timestep_error.png"):
         assert (tmp_path / name).stat().st_size > 0
     meta = json.loads((tmp_path / "timestep.meta.json").read_text())
-    assert "profile error against dt = 0.0005 s (mean +- spread over the packings)" in (
-        meta["summary"]
+    assert (
+        "profile error against dt = 0.0005 s (mean +- spread over the packings)"
+        in (meta["summary"])
     )
     assert "1 packing," in meta["summary"]
     readme = (tmp_path / "README.md").read_text()
@@ -91,7 +101,7 @@ def test_a_case_is_rebuilt_from_its_kept_measurements_without_run_files(tmp_path
     case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel")
     table = timestep.STUDY(out=tmp_path, progress=_quiet([]), **case)
     runs = sorted((tmp_path / "runs" / "timestep").iterdir())
-    assert len(runs) == 2
+    assert len(runs) == 3  # two time steps and the largest one's twin
     for folder in runs:
         assert {"measured.json", "measured.npz", "measured_stats.parquet"} <= {
             f.name for f in folder.iterdir()

@@ -6,10 +6,17 @@ With ``--seeds K`` the collapse is run from K packings (the column built with se
 0 to K-1), each against its own smallest step; ``timestep_ensemble`` gives, per time
 step and time, the mean and spread (sample standard deviation) over the packings of
 the profile errors and of the front in mean diameters, and the summary's numbers are
-computed from it."""
+computed from it.
+
+A twin of each packing's largest-step run, the same but for the solver's tolerance
+(``--twin-tol``), measures how far two runs drift apart from a perturbation the size
+of the solver's tolerance: the grain-scale sensitivity of the flow, the floor under
+which no time step's error can be told from chance (``twin_error``)."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +44,11 @@ class Settings(RunSettings):
     seeds: int = option(
         1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1 (same lattice sites)."
     )
+    twin_tol: float = option(
+        1e-9,
+        "Tolerance of a twin run at the largest time step: how far two runs differing only "
+        "in the solver's tolerance drift apart (0: no twin).",
+    )
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
@@ -56,7 +68,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     seeds = base.positive_int("seeds", cfg.seeds)
     estimate.announce(
         "timestep",
-        [(n, round(max(times) / dt)) for dt in dts for _ in range(seeds)],
+        [(n, round(max(times) / dt)) for dt in dts for _ in range(seeds)]
+        + [(n, round(max(times) / dts[0]))] * (seeds if cfg.twin_tol > 0 else 0),
         out=out,
         progress=progress,
     )
@@ -80,8 +93,23 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                     progress=progress,
                 )
             )
+        twin = None
+        if cfg.twin_tol > 0:
+            twin = base.seeded_collapse(
+                out,
+                "timestep",
+                f"n{n}_dt{dts[0]:.0e}_tol{cfg.twin_tol:.0e}",
+                seed,
+                params,
+                dataclasses.replace(cfg, tol=cfg.twin_tol),
+                dt=dts[0],
+                until=max(times),
+                frame_dt=frame_dt,
+                profile_times=times,
+                progress=progress,
+            )
         first = first or series
-        rows += _rows(series, dts, times, seed)
+        rows += _rows(series, dts, times, seed, twin)
     table = pd.DataFrame(rows)
     ref = first[-1]
     ensemble = _ensemble(table)
@@ -93,7 +121,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         intro="Per time step and time, over the packings (`seeds` of them): the mean and "
         "sample standard deviation (`_sd`, empty for one packing) of the profile errors "
         "and of the front in mean diameters (`front_d`); `error_over_largest_dt`: the mean "
-        "profile error divided by that of the largest time step at the same time.",
+        "profile error divided by that of the largest time step at the same time; "
+        "`twin_error` (largest step only): its profile against its twin's, the same run at "
+        "another solver tolerance.",
     )
     figures = [
         base.profile_figure(out / "timestep_profiles.png", first, [f"dt = {d:g} s" for d in dts])
@@ -102,8 +132,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for t in times:
         sub = ensemble[(ensemble.t == t) & (ensemble.dt > dts[-1])]
-        ax.errorbar(sub.dt, sub.profile_error, yerr=sub.profile_error_sd.fillna(0.0),
-                    marker="o", capsize=3, label=f"t = {t:g} s")  # fmt: skip
+        bars = ax.errorbar(sub.dt, sub.profile_error, yerr=sub.profile_error_sd.fillna(0.0),
+                           marker="o", capsize=3, label=f"t = {t:g} s")  # fmt: skip
+        if "twin_error" in sub:
+            floor = sub.twin_error.dropna()
+            if len(floor):
+                ax.axhline(float(floor.iloc[0]), ls=":", color=bars.lines[0].get_color(),
+                           label=f"twin runs, t = {t:g} s")  # fmt: skip
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("dt (s)")
@@ -119,8 +154,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "`profile_error_4d` the same on the profiles averaged over 4 diameters (a single "
         "grain's jump between neighbouring one-diameter bins counts less); "
         "`front_m`: the flow's front from the back wall (surface_front); `seed`: the "
-        "packing; `compute_s`: detection, "
-        "set-up and solve time of the whole run."
+        "packing; `twin_error`: the largest step's profile against its twin's, run at "
+        f"tol {cfg.twin_tol:g} instead of {cfg.tol:g} (empty for the other steps); "
+        "`compute_s`: detection, set-up and solve time of the whole run."
     )
     base.finish(
         out,
@@ -135,12 +171,18 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     return table
 
 
-def _rows(series: list[Any], dts: list[float], times: list[float], seed: int) -> list[dict]:
-    """One row per (dt, t) of one packing, against its smallest step."""
+def _rows(
+    series: list[Any], dts: list[float], times: list[float], seed: int, twin: Any = None
+) -> list[dict]:
+    """One row per (dt, t) of one packing, against its smallest step; the largest step's
+    rows also against its ``twin`` (``twin_error``, NaN elsewhere)."""
     ref = series[-1]
     rows = []
-    for s, dt in zip(series, dts, strict=True):
+    for j, (s, dt) in enumerate(zip(series, dts, strict=True)):
         for k, t in enumerate(times):
+            twin_error = math.nan
+            if twin is not None and j == 0:
+                twin_error = base.profile_error(s.profiles[k], twin.profiles[k])
             rows.append(
                 {
                     "seed": seed,
@@ -153,6 +195,7 @@ def _rows(series: list[Any], dts: list[float], times: list[float], seed: int) ->
                     ),
                     "front_m": float(np.interp(t, s.times, s.front)),
                     "front_ref_m": float(np.interp(t, ref.times, ref.front)),
+                    "twin_error": twin_error,
                     "d_mean_m": s.d_mean,
                     "steps": s.steps,
                     "mean_nc": float(s.stats.nc.mean()),
@@ -166,7 +209,10 @@ def _rows(series: list[Any], dts: list[float], times: list[float], seed: int) ->
 def _ensemble(table: pd.DataFrame) -> pd.DataFrame:
     """Mean and sample spread over the packings, per (dt, t)."""
     tab = table.assign(front_d=table.front_m / table.d_mean_m)
-    out = base.ensemble(tab, ["dt", "t"], ["profile_error", "profile_error_4d", "front_d"])
+    columns = ["profile_error", "profile_error_4d", "front_d"]
+    if "twin_error" in tab and tab.twin_error.notna().any():
+        columns.append("twin_error")
+    out = base.ensemble(tab, ["dt", "t"], columns)
     # Each step's mean error against the largest step's at the same time: the
     # convergence the seed's Fig. 2 shows (1 for the largest step, 0 for the reference).
     largest = out[out.dt == out.dt.max()].set_index("t").profile_error
@@ -197,6 +243,14 @@ def _summary(ensemble: pd.DataFrame, dts: list[float], seeds: int, ref: Any, cfg
         verdict = "at most half" if ratio <= 0.5 else "more than half"
         text += (
             f" The mean error of dt = 1e-4 s is {base.fmt(ratio)} times that of 1e-3 s ({verdict})."
+        )
+    if "twin_error" in ensemble:
+        twin = at_last.loc[dts[0]]
+        text += (
+            f" Two runs at dt = {dts[0]:g} s differing only in the solver's tolerance "
+            f"({cfg.tol:g} and {cfg.twin_tol:g}) differ by {base.pm(twin, 'twin_error')} at "
+            f"t = {last:g} s: the grain-scale sensitivity, below which no step's error is "
+            "told from chance."
         )
     return text + (
         " The seed (Fig. 2, 2D) finds the profiles of dt = 1e-3 s 'very close, with only "
