@@ -143,6 +143,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     ax.set_yscale("log")
     ax.set_xlabel("dt (s)")
     ax.set_ylabel(f"profile error against dt = {dts[-1]:g} s")
+    ax.set_title(
+        f"{ref.n_grains} discs, mu = {cfg.mu:g}, {seeds} packing{'s' if seeds > 1 else ''} "
+        "(mean +- sd)",
+        fontsize="medium",
+    )
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     figures.append(base.save_figure(fig, out / "timestep_error.png"))
