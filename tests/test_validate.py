@@ -212,6 +212,20 @@ def test_erodible_gaps_between_layers_over_two_packings(tmp_path):
     summary = json.loads((tmp_path / "erodible.meta.json").read_text())["summary"]
     g = "{:.3g}".format
     assert f"0 to 3 d at 22 deg: {g(gap.gap_R0)} +- {g(gap.gap_R0_sd)} R0" in summary
+    # One layer alone (read back from the kept runs): no gap to give, an empty table.
+    erodible.STUDY(
+        n=30,
+        slopes=[22.0],
+        layers_d=[3.0],
+        until=0.2,
+        bed_length=0.8,
+        solver="clarabel",
+        seeds=2,
+        out=tmp_path,
+        progress=_quiet([]),
+    )
+    gaps = pd.read_csv(tmp_path / "erodible_gaps.csv")
+    assert gaps.empty and {"gap_R0", "gap_R0_sd", "seed_gap_R0"} <= set(gaps.columns)
 
 
 def test_runout_grows_with_the_aspect_ratio(tmp_path):
