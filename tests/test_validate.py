@@ -108,9 +108,14 @@ def test_a_case_is_rebuilt_from_its_kept_measurements_without_run_files(tmp_path
         }
         (folder / "run.h5").unlink()
     again: list[str] = []
+    first_work = json.loads((tmp_path / "timestep.meta.json").read_text())["work_units"]
     table2 = timestep.STUDY(out=tmp_path, progress=again.append, **case)
     assert not any("step " in line for line in again)
     assert not any((folder / "run.h5").exists() for folder in runs)
+    # Nothing was solved: the record's work is nil, so the next estimate does not take
+    # the read-back's seconds for the solves' rate.
+    assert first_work > 0
+    assert json.loads((tmp_path / "timestep.meta.json").read_text())["work_units"] == 0
     pd.testing.assert_frame_equal(table, table2)
     # Other profile times: the kept measurements do not answer, the runs are made again.
     lines: list[str] = []

@@ -27,7 +27,16 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["EXPONENT", "PER_SOLVE", "RATES", "announce", "format_seconds", "record", "work"]
+__all__ = [
+    "EXPONENT",
+    "PER_SOLVE",
+    "RATES",
+    "announce",
+    "format_seconds",
+    "record",
+    "skip",
+    "work",
+]
 
 #: Time per solve grows as N ** EXPONENT.
 EXPONENT = 1.4
@@ -117,6 +126,14 @@ def announce(
     )
     progress(line)
     return seconds
+
+
+def skip(n: float, count: float) -> None:
+    """``count`` announced solves of ``N`` grains were not made after all (read back from
+    kept results, or steps a resumed run had already taken): the record's work leaves them
+    out, so that the rate it gives the next estimate is that of the solves made."""
+    if _current and count > 0:
+        _current["work"] = max(0.0, _current["work"] - work([(n, count)]))
 
 
 def record() -> dict[str, float]:

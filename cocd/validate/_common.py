@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
-from cocd.bench import report
+from cocd.bench import estimate, report
 from cocd.bench.study import Study, option
 from cocd.bench.study import register as study_register
 from cocd.errors import CocdError
@@ -179,6 +179,7 @@ def collapse_series(
     else:
         kept = read_measured(folder, key, label)
         if kept is not None:
+            estimate.skip(kept.n_grains, round(until / dt))
             return kept
     try:
         summary = run(
@@ -197,6 +198,7 @@ def collapse_series(
     if summary.resumed_from_step and summary.steps > summary.resumed_from_step:
         progress(f"  {label}: resumed at step {summary.resumed_from_step}")
     series = measure_series(summary.path, label, profile_times, bin_width, x_max, dt)
+    estimate.skip(series.n_grains, summary.resumed_from_step or 0)
     write_measured(folder, key, series)
     return series
 
