@@ -61,6 +61,24 @@ def test_an_ensemble_of_packings_gives_mean_and_spread(tmp_path):
     assert (tmp_path / "runs" / "timestep" / "n30_dt2e-03_tol1e-09_s1" / "run.h5").exists()
 
 
+def test_twin_run_can_be_left_out_and_a_bad_twin_tolerance_is_refused(tmp_path):
+    case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel")
+    table = timestep.STUDY(out=tmp_path, progress=_quiet([]), twin_tol=0.0, **case)
+    assert "twin_error" not in table
+    assert "twin_error" not in pd.read_csv(tmp_path / "timestep_ensemble.csv")
+    meta = json.loads((tmp_path / "timestep.meta.json").read_text())
+    assert (
+        "twin" not in meta["summary"] and len(list((tmp_path / "runs" / "timestep").iterdir())) == 2
+    )
+    for bad in (1e-8, -1e-9, float("nan")):  # the run's own tolerance, negative, NaN
+        result = runner.invoke(
+            app,
+            ["validate", "timestep", "--n", "30", "--twin-tol", str(bad), "--out", str(tmp_path)],
+        )
+        assert result.exit_code != 0 and "twin_tol must be 0 (no twin)" in result.output
+        assert "Traceback" not in result.output
+
+
 def test_smaller_time_steps_converge(tmp_path):
     lines: list[str] = []
     case = dict(n=30, dts=[2e-3, 1e-3, 5e-4], times=[0.02, 0.06], solver="clarabel")
@@ -258,6 +276,9 @@ def test_runout_grows_with_the_aspect_ratio(tmp_path):
     assert fit.n_low == 3 and fit.n_high == 3  # three ratios a side, the least allowed
     summary = json.loads((tmp_path / "runout_scaling.meta.json").read_text())["summary"]
     assert f"a^({fit.k_all:.2f} +- {fit.k_all_ci:.2f})" in summary
+    # Two laws against one: six ratios, one split, a p-value, quoted in the summary.
+    assert 0.0 < fit.p_two_laws <= 1.0
+    assert "Two laws against one: runout p " in summary
     assert (tmp_path / "runout_scaling.png").stat().st_size > 0
 
 
@@ -314,6 +335,9 @@ def test_two_power_laws_are_recovered():
     # One law with the same noise: the best split is not told from the scatter.
     straight = fit_two_power_laws(aa, 2.0 * aa**0.8 * np.exp(rng.normal(0.0, 0.05, aa.size)))
     assert straight["p_two_laws"] > 0.05
+    # A law exact to rounding: no bend at all, whatever the exponent.
+    for k in (0.8, 0.9, 1.0):
+        assert fit_two_power_laws(aa, 2.0 * aa**k)["p_two_laws"] == 1.0
     few = fit_two_power_laws([1.0, 2.0, 3.0, 4.0, 5.0], [1.0, 2.0, 3.0, 3.5, 4.0])
     assert math.isnan(few["a_c"]) and math.isfinite(few["k_all_ci"])
 

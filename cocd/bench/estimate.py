@@ -33,8 +33,8 @@ __all__ = [
     "RATES",
     "announce",
     "format_seconds",
+    "made",
     "record",
-    "skip",
     "work",
 ]
 
@@ -128,12 +128,13 @@ def announce(
     return seconds
 
 
-def skip(n: float, count: float) -> None:
-    """``count`` announced solves of ``N`` grains were not made after all (read back from
-    kept results, or steps a resumed run had already taken): the record's work leaves them
-    out, so that the rate it gives the next estimate is that of the solves made."""
-    if _current and count > 0:
-        _current["work"] = max(0.0, _current["work"] - work([(n, count)]))
+def made(n: float, count: float) -> None:
+    """``count`` solves of ``N`` grains were made. A command that reports what it made
+    (the validation cases, whose runs may be read back from kept results or resumed)
+    records that work instead of the work it announced, so that the rate it gives the
+    next estimate is that of the solves made (none made: no rate)."""
+    if _current:
+        _current["made"] = _current.get("made", 0.0) + (work([(n, count)]) if count > 0 else 0.0)
 
 
 def record() -> dict[str, float]:
@@ -142,7 +143,7 @@ def record() -> dict[str, float]:
         return {}
     return {
         "elapsed_s": round(time.perf_counter() - _current["start"], 1),
-        "work_units": round(_current["work"], 6),
+        "work_units": round(_current.get("made", _current["work"]), 6),
     }
 
 

@@ -210,7 +210,11 @@ def fit_two_power_laws(
     return out
 
 
-def _f_test(x: np.ndarray, z: np.ndarray, min_points: int, draws: int = 999) -> float:
+#: Bootstrap draws of the two-law test: its smallest p-value is 1 / (1 + BEND_DRAWS).
+BEND_DRAWS = 999
+
+
+def _f_test(x: np.ndarray, z: np.ndarray, min_points: int, draws: int = BEND_DRAWS) -> float:
     """p-value of the best two-line split against one line (``x`` sorted).
 
     The statistic is the F ratio of the residuals; its null distribution is drawn by a
@@ -249,10 +253,11 @@ def _f_test(x: np.ndarray, z: np.ndarray, min_points: int, draws: int = 999) -> 
         )
         return ((one - two) / 2.0) / np.maximum(two / dof, 1e-300)
 
+    one = float(np.sum((z @ whole) ** 2))
+    if one <= 1e-24 * max(1.0, float(np.sum((z - z.mean()) ** 2))):
+        return 1.0  # one law fits to rounding: nothing for a second to explain
     observed = float(statistic(z[None, :])[0])
-    sigma = math.sqrt(float(np.sum((z @ whole) ** 2)) / (x.size - 2))
-    if sigma == 0.0:
-        return 1.0
+    sigma = math.sqrt(one / (x.size - 2))
     line = z - z @ whole  # the fitted line's values
     rng = np.random.default_rng(0)
     null = statistic(line + rng.normal(0.0, sigma, (draws, x.size)))

@@ -179,7 +179,7 @@ def collapse_series(
     else:
         kept = read_measured(folder, key, label)
         if kept is not None:
-            estimate.skip(kept.n_grains, round(until / dt))
+            estimate.made(kept.n_grains, 0)  # read back: no solve made
             return kept
     try:
         summary = run(
@@ -198,7 +198,7 @@ def collapse_series(
     if summary.resumed_from_step and summary.steps > summary.resumed_from_step:
         progress(f"  {label}: resumed at step {summary.resumed_from_step}")
     series = measure_series(summary.path, label, profile_times, bin_width, x_max, dt)
-    estimate.skip(series.n_grains, summary.resumed_from_step or 0)
+    estimate.made(series.n_grains, summary.steps - (summary.resumed_from_step or 0))
     write_measured(folder, key, series)
     return series
 

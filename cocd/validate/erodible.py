@@ -286,8 +286,9 @@ def _summary(
         f"at tol {cfg.tol:g}, dt = {dt:g} s, to t = {until:g} s. "
         f"Runout at t = {until:g} s (the front averaged over the last "
         f"{base.RUNOUT_WINDOW * until:g} s) relative to the same slope without a layer "
-        f"(mean +- spread over the packings): **{'; '.join(parts)}**. Gaps between layers: "
-        f"{gap_text}. The seed (Fig. 9, 2D, d = 1 mm, 44 996 discs) finds the runout "
+        f"(mean +- spread over the packings): **{'; '.join(parts)}**. "
+        + (f"Gaps between layers: {gap_text}. " if gap_text else "")
+        + "The seed (Fig. 9, 2D, d = 1 mm, 44 996 discs) finds the runout "
         "growing with the layer's thickness, more on steeper slopes: the fronts of the 3 "
         "and 5 mm layers differ by about 10 % of R0 at 16 deg, 30 % at 19 deg and 110 % at "
         "22 deg."

@@ -32,7 +32,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from cocd.bench import estimate
-from cocd.bench.metrics import fit_two_power_laws
+from cocd.bench.metrics import BEND_DRAWS, fit_two_power_laws
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
@@ -195,7 +195,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         if not math.isfinite(p):
             return f"{name}, too few ratios to test"
         verdict = "a bend" if p < 0.05 else "no bend told from the scatter"
-        return f"{name} p = {p:.2g} ({verdict})"
+        floor = 1.0 / (1 + BEND_DRAWS)
+        return f"{name} p {'<= ' + format(floor, 'g') if p <= floor else f'= {p:.2g}'} ({verdict})"
 
     summary = (
         f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, mu = {cfg.mu:g}, "
@@ -253,7 +254,7 @@ def _figure(
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     a = table.a.to_numpy()
     table = table.assign(H0_over_Hf=1.0 / table.Hf_over_H0)
-    stats = table.groupby("a").agg(["mean", "std"])
+    stats = table.groupby("a")[["runout", "H0_over_Hf"]].agg(["mean", "std"])
     seeds = table.seed.nunique()
     for ax, column, fit, label in (
         (axes[0], "runout", fit_r, "(Lf - L0) / L0"),

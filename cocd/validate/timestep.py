@@ -66,10 +66,18 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     params = base.base_params(n, cfg.mu)
     frame_dt = base.frame_interval(times, dts)
     seeds = base.positive_int("seeds", cfg.seeds)
+    twin_tol = float(cfg.twin_tol)
+    if twin_tol != 0 and not (
+        math.isfinite(twin_tol) and twin_tol > 0 and not math.isclose(twin_tol, cfg.tol)
+    ):
+        raise CocdError(
+            f"twin_tol must be 0 (no twin) or a positive tolerance other than tol "
+            f"({cfg.tol:g}), not {cfg.twin_tol!r}"
+        )
     estimate.announce(
         "timestep",
         [(n, round(max(times) / dt)) for dt in dts for _ in range(seeds)]
-        + [(n, round(max(times) / dts[0]))] * (seeds if cfg.twin_tol > 0 else 0),
+        + [(n, round(max(times) / dts[0]))] * (seeds if twin_tol > 0 else 0),
         out=out,
         progress=progress,
     )
@@ -94,11 +102,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 )
             )
         twin = None
-        if cfg.twin_tol > 0:
+        if twin_tol > 0:
             twin = base.seeded_collapse(
                 out,
                 "timestep",
-                f"n{n}_dt{dts[0]:.0e}_tol{cfg.twin_tol:.0e}",
+                f"n{n}_dt{dts[0]:.0e}_tol{twin_tol:g}",
                 seed,
                 params,
                 dataclasses.replace(cfg, tol=cfg.twin_tol),
@@ -111,6 +119,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         first = first or series
         rows += _rows(series, dts, times, seed, twin)
     table = pd.DataFrame(rows)
+    if twin_tol == 0:
+        table = table.drop(columns="twin_error")
     ref = first[-1]
     ensemble = _ensemble(table)
     files = report.write_table(
@@ -121,9 +131,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         intro="Per time step and time, over the packings (`seeds` of them): the mean and "
         "sample standard deviation (`_sd`, empty for one packing) of the profile errors "
         "and of the front in mean diameters (`front_d`); `error_over_largest_dt`: the mean "
-        "profile error divided by that of the largest time step at the same time; "
-        "`twin_error` (largest step only): its profile against its twin's, the same run at "
-        "another solver tolerance.",
+        "profile error divided by that of the largest time step at the same time"
+        + (
+            "; `twin_error` (largest step only): its profile against its twin's, the same "
+            "run at another solver tolerance."
+            if twin_tol > 0
+            else "."
+        ),
     )
     figures = [
         base.profile_figure(out / "timestep_profiles.png", first, [f"dt = {d:g} s" for d in dts])
@@ -136,7 +150,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                            marker="o", capsize=3, label=f"t = {t:g} s")  # fmt: skip
         if "twin_error" in sub:
             floor = sub.twin_error.dropna()
-            if len(floor):
+            if len(floor) and float(floor.iloc[0]) > 0:
                 ax.axhline(float(floor.iloc[0]), ls=":", color=bars.lines[0].get_color(),
                            label=f"twin runs, t = {t:g} s")  # fmt: skip
     ax.set_xscale("log")
@@ -159,9 +173,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "`profile_error_4d` the same on the profiles averaged over 4 diameters (a single "
         "grain's jump between neighbouring one-diameter bins counts less); "
         "`front_m`: the flow's front from the back wall (surface_front); `seed`: the "
-        "packing; `twin_error`: the largest step's profile against its twin's, run at "
-        f"tol {cfg.twin_tol:g} instead of {cfg.tol:g} (empty for the other steps); "
-        "`compute_s`: detection, set-up and solve time of the whole run."
+        "packing; "
+        + (
+            "`twin_error`: the largest step's profile against its twin's, run at "
+            f"tol {twin_tol:g} instead of {cfg.tol:g} (empty for the other steps); "
+            if twin_tol > 0
+            else ""
+        )
+        + "`compute_s`: detection, set-up and solve time of the whole run."
     )
     base.finish(
         out,
