@@ -140,7 +140,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 "L0_m": L0,
                 "H0_m": H0,
                 "n_grains": s.n_grains,
-                "t_end": float(s.times[-1]),
+                "t_end": round(float(s.times[-1]), 9),
                 "Lf_m": Lf,
                 "runout": (Lf - L0_measured) / L0_measured,
                 "Hf_m": Hf,
@@ -200,7 +200,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
 
     summary = (
         f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, mu = {cfg.mu:g}, "
-        f"{table.n_grains.min()} to {table.n_grains.max()} discs), {len(aspects)} aspect "
+        f"{_grains(table)} discs), {len(aspects)} aspect "
         f"ratios a = {', '.join(f'{a:g}' for a in aspects)}, {seeds} "
         f"packing{'s' if seeds > 1 else ''} each, `{cfg.solver}` at tol {cfg.tol:g}. "
         "Exponents with their 95 % intervals: runout (Lf - L0)/L0 ~ "
@@ -242,6 +242,12 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     return table
 
 
+def _grains(table: pd.DataFrame) -> str:
+    """The columns' grain count, or its range."""
+    low, high = int(table.n_grains.min()), int(table.n_grains.max())
+    return f"{low}" if low == high else f"{low} to {high}"
+
+
 def _figure(
     path: Path,
     table: pd.DataFrame,
@@ -281,8 +287,7 @@ def _figure(
     axes[1].loglog(ref, (fit_h["c_all"]) * ref**0.69, "k:", label="a^0.69 (seed 001, wide)")
     for ax in axes:
         ax.legend(fontsize="small")
-    low, high = table.n_grains.min(), table.n_grains.max()
-    fig.suptitle(f"2D collapses, {low if low == high else f'{low} to {high}'} discs, mu = {mu:g}")
+    fig.suptitle(f"2D collapses, {_grains(table)} discs, mu = {mu:g}")
     return base.save_figure(fig, path)
 
 
