@@ -207,17 +207,8 @@ def test_an_erodible_layer_lengthens_the_runout(tmp_path):
 def test_erodible_gaps_between_layers_over_two_packings(tmp_path):
     """Two packings, two layers: the gap table holds each packing's runout difference in
     R0, averaged with its spread, and the summary quotes it."""
-    table = erodible.STUDY(
-        n=30,
-        slopes=[22.0],
-        layers_d=[0.0, 3.0],
-        until=0.2,
-        bed_length=0.8,
-        solver="clarabel",
-        seeds=2,
-        out=tmp_path,
-        progress=_quiet([]),
-    )
+    study = dict(n=30, slopes=[22.0], until=0.2, bed_length=0.8, solver="clarabel", seeds=2)
+    table = erodible.STUDY(**study, layers_d=[0.0, 3.0], out=tmp_path, progress=_quiet([]))
     assert sorted(table.seed) == [0, 0, 1, 1]
     per_seed = [
         (sub.set_index("layer_d").runout_m[3.0] - sub.set_index("layer_d").runout_m[0.0])
@@ -236,17 +227,7 @@ def test_erodible_gaps_between_layers_over_two_packings(tmp_path):
     g = "{:.3g}".format
     assert f"0 to 3 d at 22 deg: {g(gap.gap_R0)} +- {g(gap.gap_R0_sd)} R0" in summary
     # One layer alone (read back from the kept runs): no gap to give, an empty table.
-    erodible.STUDY(
-        n=30,
-        slopes=[22.0],
-        layers_d=[3.0],
-        until=0.2,
-        bed_length=0.8,
-        solver="clarabel",
-        seeds=2,
-        out=tmp_path,
-        progress=_quiet([]),
-    )
+    erodible.STUDY(**study, layers_d=[3.0], out=tmp_path, progress=_quiet([]))
     gaps = pd.read_csv(tmp_path / "erodible_gaps.csv")
     assert gaps.empty and {"gap_R0", "gap_R0_sd", "seed_gap_R0"} <= set(gaps.columns)
 
