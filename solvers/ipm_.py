@@ -40,7 +40,8 @@ cocd                      ipm
 ``warm_start``            not used (an interior point starts from the centre)
 ``verbose``               one line per iteration
 ``**options``             ``linsolve`` (``pardiso``, ``cholmod``, ``qdldl``),
-                          ``threads`` (PARDISO's, default 2), ``polish``,
+                          ``threads`` (PARDISO's; default: the environment's
+                          ``MKL_NUM_THREADS``, else 2), ``polish``,
                           ``correctors`` (Gondzio correctors per iteration
                           on the nonnegative rows, default 2; 0 for plain
                           Mehrotra)
@@ -55,6 +56,7 @@ factor's nonzeros as PARDISO reports them; ``None`` for the other solvers).
 
 from __future__ import annotations
 
+import os
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -300,9 +302,25 @@ def ipm_solve_problem(problem: ConicProblem, request: Request, **options: Any) -
         return _solve(problem, request, linsolve, options)
 
 
+def _threads(options: Any) -> int:
+    """PARDISO's threads: the option, else ``MKL_NUM_THREADS`` (which Dask's workers and
+    ``cocd validate --workers`` set to 1), else 2."""
+    given = options.get("threads")
+    where = "the option threads"
+    if given is None:
+        given, where = os.environ.get("MKL_NUM_THREADS", "").strip() or 2, "MKL_NUM_THREADS"
+    try:
+        threads = int(given)
+    except (TypeError, ValueError):
+        threads = 0
+    if threads < 1:
+        raise ProblemError(f"ipm: {where} must be a positive integer, got {given!r}")
+    return threads
+
+
 def _solve(problem: ConicProblem, request: Request, linsolve: str, options: Any) -> Solution:
     tol, time_limit, verbose = request.tol, request.time_limit, request.verbose
-    threads = int(options.get("threads", 2))
+    threads = _threads(options)
     polish = bool(options.get("polish", True))
     correctors = int(options.get("correctors", DEFAULT_CORRECTORS))
     cap = DEFAULT_MAX_ITER if request.max_iter is None else int(request.max_iter)

@@ -160,6 +160,25 @@ def test_bad_options_are_named():
         solvers.solve(problem, "ipm", colour="red")
 
 
+def test_threads_follow_the_option_then_mkl_num_threads(monkeypatch):
+    """PARDISO's threads: the option, else MKL_NUM_THREADS (Dask's workers and
+    `cocd validate --workers` set it to 1), else 2; a bad value is named."""
+    from solvers.ipm_ import _threads
+
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    assert _threads({}) == 2
+    monkeypatch.setenv("MKL_NUM_THREADS", "1")
+    assert _threads({}) == 1 and _threads({"threads": 3}) == 3
+    monkeypatch.setenv("MKL_NUM_THREADS", "many")
+    with pytest.raises(ProblemError, match="MKL_NUM_THREADS must be a positive integer"):
+        _threads({})
+    with pytest.raises(ProblemError, match="the option threads must be a positive integer"):
+        _threads({"threads": -1})
+    monkeypatch.setenv("MKL_NUM_THREADS", "1")
+    problem = _first_problem()
+    assert solvers.solve(problem, "ipm", tol=1e-8).status.value == "optimal"
+
+
 def _first_problem():
     stepper = Stepper(column_2d(30), 1e-3)
     stepper.step()

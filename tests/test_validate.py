@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pandas as pd
@@ -59,6 +60,31 @@ def test_an_ensemble_of_packings_gives_mean_and_spread(tmp_path):
     assert np.isclose(row.twin_error, twins.mean())
     assert "differing only in the solver's tolerance (1e-08 and 1e-09)" in summary
     assert (tmp_path / "runs" / "timestep" / "n30_dt2e-03_tol1e-09_s1" / "run.h5").exists()
+
+
+def test_runs_made_two_at_once_give_the_same_tables_and_are_read_back(tmp_path):
+    """--workers 2 runs the packings in two processes on one thread each: the same
+    numbers as one after another, every run's progress comes back, and a second call
+    reads the kept runs back, solving nothing."""
+    case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel", seeds=2)
+    apart, together = tmp_path / "apart", tmp_path / "together"
+    one = timestep.STUDY(out=apart, progress=_quiet([]), **case)
+    lines: list[str] = []
+    two = timestep.STUDY(out=together, progress=lines.append, workers=2, **case)
+    pd.testing.assert_frame_equal(
+        one.drop(columns="compute_s"), two.drop(columns="compute_s"), check_exact=True
+    )
+    labels = ["n30_dt2e-03", "n30_dt1e-03", "n30_dt2e-03_tol1e-09"]
+    for label in labels + [f"{x}_s1" for x in labels]:
+        assert any(line.startswith(f"timestep: {label} (") for line in lines), label
+        assert any(re.match(rf"  {label}: step (\d+)/\1 ", line) for line in lines), label
+    assert json.loads((together / "timestep.meta.json").read_text())["work_units"] > 0
+    again: list[str] = []
+    timestep.STUDY(out=together, progress=again.append, workers=2, **case)
+    assert not any(": step " in line for line in again)  # read back, nothing solved
+    assert json.loads((together / "timestep.meta.json").read_text())["work_units"] == 0
+    with pytest.raises(CocdError, match="workers must be an integer >= 1, got 0"):
+        timestep.STUDY(out=together, progress=_quiet([]), workers=0, **case)
 
 
 def test_twin_run_can_be_left_out_and_a_bad_twin_tolerance_is_refused(tmp_path):

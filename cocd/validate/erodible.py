@@ -18,11 +18,11 @@ from cocd.bench import estimate, report
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
-from cocd.validate._common import RunSettings, register
+from cocd.validate._common import CollapseSettings, register
 
 
 @dataclass(frozen=True)
-class Settings(RunSettings):
+class Settings(CollapseSettings):
     """The options of ``cocd validate erodible``."""
 
     n: int = option(400, "Discs in the column.")
@@ -75,33 +75,26 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         out=out,
         progress=progress,
     )
-    rows = []
-    fronts: dict[tuple[int, float, float], base.CollapseSeries] = {}
-    for seed in range(seeds):
-        for slope in slopes:
-            for layer in layers:
-                params = base.base_params(
-                    n,
-                    cfg.mu,
-                    slope,
-                    erodible_thickness=layer * d_mean,
-                    bed_length=bed_length,
-                )
-                s = base.seeded_collapse(
-                    out,
-                    "erodible",
-                    f"n{n}_slope{slope:g}_layer{layer:g}d_bed{bed_length:g}m",
-                    seed,
-                    params,
-                    cfg,
-                    what=f"layer {layer * d_mean * 1e3:.1f} mm",
-                    dt=dt,
-                    until=until,
-                    frame_dt=frame_dt,
-                    progress=progress,
-                )
-                fronts[(seed, slope, layer)] = s
-                rows.append(_row(s, seed, slope, layer, window, bed_length))
+    cases = [(seed, slope, layer) for seed in range(seeds) for slope in slopes for layer in layers]
+    jobs = [
+        base.collapse_job(
+            out,
+            "erodible",
+            f"n{n}_slope{slope:g}_layer{layer:g}d_bed{bed_length:g}m",
+            seed,
+            base.base_params(
+                n, cfg.mu, slope, erodible_thickness=layer * d_mean, bed_length=bed_length
+            ),
+            cfg,
+            what=f"layer {layer * d_mean * 1e3:.1f} mm",
+            dt=dt,
+            until=until,
+            frame_dt=frame_dt,
+        )
+        for seed, slope, layer in cases
+    ]
+    fronts = dict(zip(cases, base.collapse_runs(jobs, cfg.workers, progress), strict=True))
+    rows = [_row(s, *key, window, bed_length) for key, s in fronts.items()]
     table = pd.DataFrame(rows)
     bare = table[table.layer_d == layers[0]].set_index(["seed", "slope_deg"]).runout_m
     keys = pd.MultiIndex.from_frame(table[["seed", "slope_deg"]])

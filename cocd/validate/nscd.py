@@ -18,11 +18,11 @@ from cocd.bench import estimate, report
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
-from cocd.validate._common import RunSettings, register
+from cocd.validate._common import CollapseSettings, register
 
 
 @dataclass(frozen=True)
-class Settings(RunSettings):
+class Settings(CollapseSettings):
     """The options of ``cocd validate nscd``."""
 
     n: int = option(400, "Discs in the column.")
@@ -79,25 +79,17 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "max_iter": cfg.nscd_max_iter,
         "solver_options": {"symmetric": cfg.nscd_symmetric},
     }
-    rows: list[dict[str, Any]] = []
-    first: list[base.CollapseSeries] = []
-    every: list[list[base.CollapseSeries]] = []
+    nscd_how = dataclasses.replace(
+        cfg, solver="nscd", tol=cfg.nscd_tol, fallback=tuple(cfg.nscd_fallback)
+    )
+    jobs = []
     for seed in range(seeds):
-        runs = []
-        for how, extra in (
-            (cfg, dict[str, Any]()),
-            (
-                dataclasses.replace(
-                    cfg, solver="nscd", tol=cfg.nscd_tol, fallback=tuple(cfg.nscd_fallback)
-                ),
-                nscd_options,
-            ),
-        ):
+        for how, extra in ((cfg, dict[str, Any]()), (nscd_how, nscd_options)):
             label = f"n{n}_{how.solver.replace(':', '-')}"
             if how.solver == "nscd" and cfg.nscd_symmetric:
                 label += "-symmetric"
-            runs.append(
-                base.seeded_collapse(
+            jobs.append(
+                base.collapse_job(
                     out,
                     "nscd",
                     label,
@@ -108,12 +100,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                     until=max(times),
                     frame_dt=frame_dt,
                     profile_times=times,
-                    progress=progress,
                     **extra,
                 )
             )
-        first = first or runs
-        every.append(runs)
+    made = base.collapse_runs(jobs, cfg.workers, progress)
+    every = [made[2 * seed : 2 * seed + 2] for seed in range(seeds)]
+    first = every[0]
+    rows: list[dict[str, Any]] = []
+    for seed, runs in enumerate(every):
         rows += _rows(runs, times, period, seed)
     table = pd.DataFrame(rows)
     ensemble = base.ensemble(table, ["t", "t_over_T"], _ENSEMBLE)

@@ -36,7 +36,7 @@ from cocd.bench.metrics import BEND_DRAWS, fit_two_power_laws
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
-from cocd.validate._common import RunSettings, register
+from cocd.validate._common import CollapseSettings, register
 
 __all__ = ["STUDY", "Settings", "run"]
 
@@ -45,7 +45,7 @@ G = 9.81
 
 
 @dataclass(frozen=True)
-class Settings(RunSettings):
+class Settings(CollapseSettings):
     """The options of ``cocd validate runout``."""
 
     aspects: tuple[float, ...] = option(
@@ -96,7 +96,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         out=out,
         progress=progress,
     )
-    rows = []
+    cases = []
+    jobs = []
     for seed, a in ((seed, a) for seed in range(seeds) for a in aspects):
         L0, H0 = math.sqrt(area / a), math.sqrt(area * a)
         until = max(min_time, rest_T * math.sqrt(H0 / G))
@@ -113,20 +114,25 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             "bed_length": bed,
             "mu": cfg.mu,
         }
-        s = base.seeded_collapse(
-            out,
-            "scaling",
-            f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}",
-            seed,
-            params,
-            cfg,
-            what=f"L0 = {L0:.3f} m, H0 = {H0:.3f} m",
-            dt=dt,
-            until=until,
-            frame_dt=frame_dt,
-            profile_times=[until],
-            progress=progress,
+        cases.append((seed, a, L0, H0, bed))
+        jobs.append(
+            base.collapse_job(
+                out,
+                "scaling",
+                f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}",
+                seed,
+                params,
+                cfg,
+                what=f"L0 = {L0:.3f} m, H0 = {H0:.3f} m",
+                dt=dt,
+                until=until,
+                frame_dt=frame_dt,
+                profile_times=[until],
+            )
         )
+    rows = []
+    made = base.collapse_runs(jobs, cfg.workers, progress)
+    for (seed, a, L0, H0, bed), s in zip(cases, made, strict=True):
         L0_measured = float(s.front[0])
         Lf = float(s.front[-1])
         Hf = float(np.max(s.profiles[-1]))

@@ -29,11 +29,11 @@ from cocd.bench import estimate, report
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
-from cocd.validate._common import RunSettings, register
+from cocd.validate._common import CollapseSettings, register
 
 
 @dataclass(frozen=True)
-class Settings(RunSettings):
+class Settings(CollapseSettings):
     """The options of ``cocd validate timestep``."""
 
     n: int = option(400, "Discs in the column.")
@@ -81,43 +81,35 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         out=out,
         progress=progress,
     )
-    rows = []
-    first: list[Any] = []
+
+    def job(seed: int, dt: float, label: str, how: Settings) -> base.CollapseJob:
+        return base.collapse_job(
+            out,
+            "timestep",
+            label,
+            seed,
+            params,
+            how,
+            dt=dt,
+            until=max(times),
+            frame_dt=frame_dt,
+            profile_times=times,
+        )
+
+    jobs = []
     for seed in range(seeds):
-        series = []
-        for dt in dts:
-            series.append(
-                base.seeded_collapse(
-                    out,
-                    "timestep",
-                    f"n{n}_dt{dt:.0e}",
-                    seed,
-                    params,
-                    cfg,
-                    dt=dt,
-                    until=max(times),
-                    frame_dt=frame_dt,
-                    profile_times=times,
-                    progress=progress,
-                )
-            )
-        twin = None
-        if twin_tol > 0:
-            twin = base.seeded_collapse(
-                out,
-                "timestep",
-                f"n{n}_dt{dts[0]:.0e}_tol{twin_tol:g}",
-                seed,
-                params,
-                dataclasses.replace(cfg, tol=cfg.twin_tol),
-                dt=dts[0],
-                until=max(times),
-                frame_dt=frame_dt,
-                profile_times=times,
-                progress=progress,
-            )
-        first = first or series
-        rows += _rows(series, dts, times, seed, twin)
+        jobs += [job(seed, dt, f"n{n}_dt{dt:.0e}", cfg) for dt in dts]
+        if twin_tol > 0:  # the largest step's run again, at the twin's tolerance
+            twin_how = dataclasses.replace(cfg, tol=twin_tol)
+            jobs.append(job(seed, dts[0], f"n{n}_dt{dts[0]:.0e}_tol{twin_tol:g}", twin_how))
+    made = base.collapse_runs(jobs, cfg.workers, progress)
+    per_seed = len(dts) + (twin_tol > 0)
+    rows = []
+    for seed in range(seeds):
+        mine = made[seed * per_seed : (seed + 1) * per_seed]
+        twin = mine[len(dts)] if twin_tol > 0 else None
+        rows += _rows(mine[: len(dts)], dts, times, seed, twin)
+    first = made[: len(dts)]
     table = pd.DataFrame(rows)
     if twin_tol == 0:
         table = table.drop(columns="twin_error")
