@@ -47,8 +47,9 @@ cocd                      ipm
                           Mehrotra)
 ========================  =====================================================
 
-``extras``: ``linsolve``, ``history`` (iteration, mu, step, ccp_residual),
-``times`` (seconds in assembly, factorisation, solves, residual checks),
+``extras``: ``linsolve``, ``threads`` (PARDISO's, else None), ``history``
+(iteration, mu, step, ccp_residual), ``times`` (seconds in assembly,
+factorisation, solves, residual checks),
 ``factorisations`` (numerical ones), ``system_size`` and ``system_nnz`` (the
 order of ``K`` and the entries of its upper triangle) and ``factor_nnz`` (the
 factor's nonzeros as PARDISO reports them; ``None`` for the other solvers).
@@ -320,7 +321,7 @@ def _threads(options: Any) -> int:
 
 def _solve(problem: ConicProblem, request: Request, linsolve: str, options: Any) -> Solution:
     tol, time_limit, verbose = request.tol, request.time_limit, request.verbose
-    threads = _threads(options)
+    threads = _threads(options) if linsolve == "pardiso" else None  # PARDISO's alone
     polish = bool(options.get("polish", True))
     correctors = int(options.get("correctors", DEFAULT_CORRECTORS))
     cap = DEFAULT_MAX_ITER if request.max_iter is None else int(request.max_iter)
@@ -363,7 +364,7 @@ def _solve(problem: ConicProblem, request: Request, linsolve: str, options: Any)
         nonlocal lin
         if lin is None:
             K.data[:] = data
-            lin = LINEAR[linsolve](K, threads)
+            lin = LINEAR[linsolve](K, threads or 1)
         # K is positive definite (P is), but Theta spans many orders of magnitude near
         # the end (sliding contacts sit on the cone's boundary): when the factorisation
         # meets a non-positive pivot, scale the diagonal up by a tiny relative amount
@@ -549,6 +550,7 @@ def _solve(problem: ConicProblem, request: Request, linsolve: str, options: Any)
         "ipm",
         status.value,
         linsolve=linsolve,
+        threads=threads,
         history=history,
         times=times,
         ccp_residual=ccp_residual(problem, p_out),

@@ -34,13 +34,22 @@ def test_shipped_rate_then_the_recorded_run(tmp_path, monkeypatch):
     assert "from timings on a 2-core machine" in lines[-1]
     # A finished run records its time and work; the next estimate scales from it.
     record = estimate.record()
-    assert set(record) == {"elapsed_s", "work_units"}
+    assert set(record) == {"elapsed_s", "work_units", "workers"} and record["workers"] == 1
     assert record["work_units"] == pytest.approx(estimate.work(solves), rel=1e-6)
     meta = tmp_path / "hard.meta.json"
     meta.write_text(json.dumps({"elapsed_s": 120.0, "work_units": record["work_units"]}))
     again = estimate.announce("hard", [(2000, 20)], out=tmp_path, progress=lines.append)
     assert again == pytest.approx(240.0, rel=1e-6)
     assert f"scaled from the run recorded in {meta}" in lines[-1] and "4 min" in lines[-1]
+    # Made by 2 workers: 120 s of wall time are 240 s of one worker's; asked of 4
+    # workers, the same work takes a quarter of that.
+    meta.write_text(
+        json.dumps({"elapsed_s": 120.0, "work_units": record["work_units"], "workers": 2})
+    )
+    assert estimate.announce("hard", solves, out=tmp_path, workers=4, progress=lines.append) == (
+        pytest.approx(60.0, rel=1e-6)
+    )
+    assert estimate.record()["workers"] == 4
 
 
 def test_unreadable_record_falls_back_to_the_shipped_rate(tmp_path, monkeypatch):

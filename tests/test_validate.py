@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 
 import numpy as np
@@ -68,6 +69,7 @@ def test_runs_made_two_at_once_give_the_same_tables_and_are_read_back(tmp_path):
     reads the kept runs back, solving nothing."""
     case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel", seeds=2)
     apart, together = tmp_path / "apart", tmp_path / "together"
+    environ = dict(os.environ)
     one = timestep.STUDY(out=apart, progress=_quiet([]), **case)
     lines: list[str] = []
     two = timestep.STUDY(out=together, progress=lines.append, workers=2, **case)
@@ -85,6 +87,29 @@ def test_runs_made_two_at_once_give_the_same_tables_and_are_read_back(tmp_path):
     assert json.loads((together / "timestep.meta.json").read_text())["work_units"] == 0
     with pytest.raises(CocdError, match="workers must be an integer >= 1, got 0"):
         timestep.STUDY(out=together, progress=_quiet([]), workers=0, **case)
+    assert dict(os.environ) == environ  # the workers' one-thread settings stay theirs
+
+
+def test_a_failed_run_among_workers_stops_the_rest_and_keeps_what_finished(tmp_path):
+    """Two workers, three runs, the first failing at once: its error is raised, the
+    run beside it finishes and is kept, the third never starts; two runs in one
+    folder are refused."""
+    how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
+    base = validate.base_params(30, 0.3)
+    steps = dict(dt=1e-3, until=0.05, frame_dt=0.01)
+    jobs = [
+        validate.collapse_job(tmp_path, "t", "bad", 0, {**base, "n_grains": -5}, how, **steps),
+        validate.collapse_job(tmp_path, "t", "good", 0, base, how, **steps),
+        validate.collapse_job(tmp_path, "t", "later", 0, base, how, **steps),
+    ]
+    lines: list[str] = []
+    with pytest.raises(CocdError, match="n_grains"):
+        validate.collapse_runs(jobs, workers=2, progress=lines.append)
+    assert (tmp_path / "runs" / "t" / "good" / "measured.json").exists()
+    assert not (tmp_path / "runs" / "t" / "later").exists()
+    assert any(line.startswith("  good: step 50/50") for line in lines)
+    with pytest.raises(CocdError, match="two runs of the case would share the folder"):
+        validate.collapse_runs([jobs[1], jobs[1]], workers=2, progress=lines.append)
 
 
 def test_twin_run_can_be_left_out_and_a_bad_twin_tolerance_is_refused(tmp_path):

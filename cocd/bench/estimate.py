@@ -92,6 +92,7 @@ def announce(
     *,
     out: Path,
     progress: Callable[[str], None] = print,
+    workers: int = 1,
 ) -> float:
     """Print the expected run time of command ``name`` and start its clock.
 
@@ -105,6 +106,9 @@ def announce(
         The command's output folder (where an earlier record may be).
     progress : callable
         Receives the line.
+    workers : int
+        Solves made that many at once (``cocd validate --workers``): the time is
+        divided by it, and rates are kept per worker.
 
     Returns
     -------
@@ -114,11 +118,12 @@ def announce(
     pairs = [(float(n), float(c)) for n, c in solves if c > 0]
     units = work(pairs)
     _current.clear()
-    _current.update(name=name, start=time.perf_counter(), work=units)
+    workers = max(1, int(workers))
+    _current.update(name=name, start=time.perf_counter(), work=units, workers=workers)
     count = int(sum(c for _, c in pairs))
     largest = int(max((n for n, _ in pairs), default=0))
     rate, source = _rate(name, Path(out))
-    seconds = rate * units
+    seconds = rate * units / workers
     line = (
         f"{name}: {count} solve{'' if count == 1 else 's'}, the largest of {largest} grains; "
         "expected "
@@ -144,6 +149,7 @@ def record() -> dict[str, float]:
     return {
         "elapsed_s": round(time.perf_counter() - _current["start"], 1),
         "work_units": round(_current.get("made", _current["work"]), 6),
+        "workers": _current.get("workers", 1),
     }
 
 
@@ -153,6 +159,7 @@ def _rate(name: str, out: Path) -> tuple[float, str]:
         try:
             meta = json.loads(path.read_text())
             elapsed, units = float(meta["elapsed_s"]), float(meta["work_units"])
+            elapsed *= max(1, int(meta.get("workers", 1)))  # seconds of one worker
         except (OSError, ValueError, KeyError, TypeError):
             continue
         if units > 0 and elapsed > 0 and math.isfinite(elapsed / units):

@@ -133,26 +133,11 @@ def collapse_series(
     frame; bins are ``bin_width`` wide (default: one mean diameter) from the
     back wall to ``x_max`` (default: the bed's end).
     """
-    from cocd.config import RunConfig
     from cocd.errors import SolverError
     from cocd.runs import MEASURED_FILES, RUN_FILE, Progress, run
 
-    every = max(1, round(frame_dt / dt))
-    if abs(every * dt - frame_dt) > 1e-9 * frame_dt:
-        raise CocdError(f"frame interval {frame_dt:g} s is not a whole number of steps of {dt:g}")
-    run_table: dict[str, Any] = {
-        "dt": dt,
-        "until": until,
-        "solver": how.solver,
-        "tol": how.tol,
-        "frame_every": every,
-        "fallback": list(how.fallback),
-        "solver_options": dict(solver_options or {}),
-    }
-    if max_iter is not None:
-        run_table["max_iter"] = max_iter
-    config = RunConfig.model_validate(
-        {"builder": "column_collapse", "params": params, "run": run_table}
+    config, key = _run_key(
+        params, how, dt, until, frame_dt, profile_times, max_iter, solver_options, bin_width, x_max
     )
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -168,15 +153,6 @@ def collapse_series(
                 f"it {rec.iterations}  ({p.elapsed:.0f} s this call)"
             )
 
-    key = {
-        "version": MEASURE_VERSION,
-        "config": config.resolved(),
-        "measure": {
-            "profile_times": [float(t) for t in profile_times],
-            "bin_width": bin_width,
-            "x_max": x_max,
-        },
-    }
     if how.fresh:
         for name in MEASURED_FILES:
             (folder / name).unlink(missing_ok=True)
@@ -203,6 +179,50 @@ def collapse_series(
     series = measure_series(summary.path, label, profile_times, bin_width, x_max, dt)
     write_measured(folder, key, series)
     return dataclasses.replace(series, steps_made=summary.steps - (summary.resumed_from_step or 0))
+
+
+def _run_key(
+    params: dict[str, Any],
+    how: RunSettings,
+    dt: float,
+    until: float,
+    frame_dt: float,
+    profile_times: Sequence[float] = (),
+    max_iter: int | None = None,
+    solver_options: dict[str, Any] | None = None,
+    bin_width: float | None = None,
+    x_max: float | None = None,
+) -> tuple[Any, dict[str, Any]]:
+    """The run's configuration, and the key its kept measurements are filed under."""
+    from cocd.config import RunConfig
+
+    every = max(1, round(frame_dt / dt))
+    if abs(every * dt - frame_dt) > 1e-9 * frame_dt:
+        raise CocdError(f"frame interval {frame_dt:g} s is not a whole number of steps of {dt:g}")
+    run_table: dict[str, Any] = {
+        "dt": dt,
+        "until": until,
+        "solver": how.solver,
+        "tol": how.tol,
+        "frame_every": every,
+        "fallback": list(how.fallback),
+        "solver_options": dict(solver_options or {}),
+    }
+    if max_iter is not None:
+        run_table["max_iter"] = max_iter
+    config = RunConfig.model_validate(
+        {"builder": "column_collapse", "params": params, "run": run_table}
+    )
+    key = {
+        "version": MEASURE_VERSION,
+        "config": config.resolved(),
+        "measure": {
+            "profile_times": [float(t) for t in profile_times],
+            "bin_width": bin_width,
+            "x_max": x_max,
+        },
+    }
+    return config, key
 
 
 def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) -> None:
@@ -409,25 +429,53 @@ ONE_THREAD = dict.fromkeys(
     ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"), "1"
 )
 
+#: Seconds between two looks at the worker processes.
+_POLL_S = 0.5
+
 
 def collapse_runs(
     jobs: Sequence[CollapseJob], workers: int = 1, progress: Callable[[str], Any] = print
 ) -> list[CollapseSeries]:
     """Run (or resume, or read back) ``jobs``, their series in the same order.
 
-    ``workers`` > 1 runs that many at once, each in its own process with its
-    libraries on one thread (:data:`ONE_THREAD`); their progress lines come back
-    to ``progress``. A failed run stops the others from starting, lets the running
-    ones finish (finished runs are kept) and raises its error.
+    ``workers`` > 1 runs that many at once, each in a process of its own with its
+    libraries on one thread (:data:`ONE_THREAD`); their progress lines come back to
+    ``progress``. Runs whose measurements are kept are read back here, without a
+    process. After a failed run no other starts: the running ones finish (and are
+    kept), then its error is raised. An interrupt stops the workers, whose runs
+    resume from their last frame next time.
     """
     workers = positive_int("workers", workers)
-    if workers == 1 or len(jobs) < 2:
-        series = [_collapse(job, progress) for job in jobs]
+    folders = [job.folder for job in jobs]
+    twice = sorted({str(f) for f in folders if folders.count(f) > 1})
+    if twice:
+        raise CocdError(f"two runs of the case would share the folder {twice[0]}")
+    series: list[CollapseSeries | None] = [None] * len(jobs)
+    todo = []
+    for k, job in enumerate(jobs):
+        kept = None if job.how.fresh else _kept(job)
+        if kept is not None:
+            progress(job.announce + " (kept)")
+            series[k] = kept
+        else:
+            todo.append(k)
+    if workers == 1 or len(todo) < 2:
+        for k in todo:
+            series[k] = _collapse(jobs[k], progress)
     else:
-        series = _collapse_pool(jobs, min(workers, len(jobs)), progress)
-    for s in series:
+        made = _collapse_apart([jobs[k] for k in todo], min(workers, len(todo)), progress)
+        for k, s in zip(todo, made, strict=True):
+            series[k] = s
+    done = [s for s in series if s is not None]
+    for s in done:
         estimate.made(s.n_grains, s.steps_made)  # none for a run read back
-    return series
+    return done
+
+
+def _kept(job: CollapseJob) -> CollapseSeries | None:
+    kw = dict(job.kwargs)
+    _, key = _run_key(job.params, job.how, kw.pop("dt"), kw.pop("until"), kw.pop("frame_dt"), **kw)
+    return read_measured(job.folder, key, job.label)
 
 
 def _collapse(job: CollapseJob, progress: Callable[[str], Any]) -> CollapseSeries:
@@ -437,63 +485,96 @@ def _collapse(job: CollapseJob, progress: Callable[[str], Any]) -> CollapseSerie
     )
 
 
-_LINES: Any = None  # a worker process's queue of progress lines
+def _worker(job: CollapseJob, conn: Any) -> None:
+    """A worker process: run ``job``, sending its progress lines, then its series or
+    its error, through ``conn``. An interrupt is the parent's to handle; a stop from
+    the parent ends the run as an interrupt would (its run file keeps its frames)."""
+    import signal
+
+    def stop(*_: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        conn.send(("done", _collapse(job, lambda line: conn.send(("line", line)))))
+    except KeyboardInterrupt:  # stopped by the parent, which knows why
+        pass
+    except Exception as exc:  # sent to the parent, which raises it
+        try:
+            conn.send(("error", exc))
+        except Exception:  # not picklable: its message
+            conn.send(("error", CocdError(f"{job.label}: {exc}")))
+    finally:
+        conn.close()
 
 
-def _worker_start(lines: Any) -> None:
-    global _LINES
-    _LINES = lines
-
-
-def _worker_collapse(job: CollapseJob) -> CollapseSeries:
-    return _collapse(job, _LINES.put)
-
-
-def _collapse_pool(
+def _collapse_apart(
     jobs: Sequence[CollapseJob], workers: int, progress: Callable[[str], Any]
 ) -> list[CollapseSeries]:
     import multiprocessing
-    import queue
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-    from concurrent.futures.process import BrokenProcessPool
+    from multiprocessing.connection import wait
 
     context = multiprocessing.get_context("spawn")
-    lines = context.Queue()
-
-    def drain(timeout: float = 0.0) -> None:
-        while True:
-            try:
-                progress(lines.get(timeout=timeout) if timeout else lines.get_nowait())
-            except queue.Empty:
-                return
-
+    results: dict[int, CollapseSeries] = {}
+    running: dict[Any, tuple[int, Any]] = {}  # parent's end of the pipe -> (job, process)
+    waiting = list(range(len(jobs)))
+    failure: BaseException | None = None
     saved = {name: os.environ.get(name) for name in ONE_THREAD}
-    os.environ.update(ONE_THREAD)  # the workers inherit it when they start
     try:
-        with ProcessPoolExecutor(
-            workers, mp_context=context, initializer=_worker_start, initargs=(lines,)
-        ) as pool:
-            futures = [pool.submit(_worker_collapse, job) for job in jobs]
-            pending = set(futures)
-            while pending:
-                done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
-                drain()
-                if any(f.exception() is not None for f in done if not f.cancelled()):
-                    for f in pending:
-                        f.cancel()  # not started yet: left for the next call
-            drain(timeout=0.2)
-            return [f.result() for f in futures]
-    except BrokenProcessPool as exc:
-        raise CocdError(
-            f"a worker process stopped ({exc}); finished runs are kept and the others "
-            "resume when the case is run again"
-        ) from None
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
+        while running or (waiting and failure is None):
+            while waiting and failure is None and len(running) < workers:
+                k = waiting.pop(0)
+                mine, theirs = context.Pipe(duplex=False)
+                process = context.Process(target=_worker, args=(jobs[k], theirs), daemon=True)
+                os.environ.update(ONE_THREAD)  # what the process starts with
+                try:
+                    process.start()
+                finally:
+                    _restore(saved)
+                theirs.close()
+                running[mine] = (k, process)
+            ready: list[Any] = list(wait(list(running), timeout=_POLL_S))
+            for conn in ready:
+                k, process = running[conn]
+                try:
+                    kind, value = conn.recv()
+                except EOFError:  # the process ended without a word
+                    process.join()
+                    kind, value = (
+                        "error",
+                        CocdError(
+                            f"{jobs[k].label}: its process stopped (exit code {process.exitcode}); "
+                            "finished runs are kept and this one resumes when the case is run again"
+                        ),
+                    )
+                if kind == "line":
+                    progress(value)
+                    continue
+                del running[conn]
+                conn.close()
+                process.join()
+                if kind == "done":
+                    results[k] = value
+                elif failure is None:
+                    failure = value
+    except BaseException:
+        for _, process in running.values():
+            process.terminate()  # the run stops as if interrupted, keeping its frames
+        for _, process in running.values():
+            process.join()
+        raise
+    if failure is not None:
+        raise failure
+    return [results[k] for k in range(len(jobs))]
+
+
+def _restore(saved: dict[str, str | None]) -> None:
+    for name, value in saved.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
 
 
 def seed_label(label: str, seed: int) -> str:
@@ -613,7 +694,7 @@ class CollapseSettings(RunSettings):
     workers: int = option(
         1,
         "Runs simulated at once, each in its own process on one thread (1: one after "
-        "another, on every core).",
+        "another, with the libraries' own threads).",
     )
 
 

@@ -74,6 +74,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         [(n, round(until / dt) * len(slopes) * len(layers) * seeds)],
         out=out,
         progress=progress,
+        workers=cfg.workers,
     )
     cases = [(seed, slope, layer) for seed in range(seeds) for slope in slopes for layer in layers]
     jobs = [

@@ -74,7 +74,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if times[0] <= 0.0:
         raise CocdError(f"times_T {times_T} round to t = 0 s: ask for later times")
     seeds = base.positive_int("seeds", cfg.seeds)
-    estimate.announce("nscd", [(n, 2 * seeds * round(max(times) / dt))], out=out, progress=progress)
+    estimate.announce(
+        "nscd",
+        [(n, 2 * seeds * round(max(times) / dt))],
+        out=out,
+        progress=progress,
+        workers=cfg.workers,
+    )
     nscd_options: dict[str, Any] = {
         "max_iter": cfg.nscd_max_iter,
         "solver_options": {"symmetric": cfg.nscd_symmetric},

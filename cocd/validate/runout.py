@@ -95,6 +95,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         ],
         out=out,
         progress=progress,
+        workers=cfg.workers,
     )
     cases = []
     jobs = []

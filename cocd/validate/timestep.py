@@ -58,7 +58,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     the profile error against the smallest ``dt`` and the front position.
     """
     n = base.positive_int("n", cfg.n)
-    dts = sorted(base.positive_list("dts", cfg.dts), reverse=True)
+    dts = sorted(set(base.positive_list("dts", cfg.dts)), reverse=True)
     times = sorted(base.positive_list("times", cfg.times))
     if len(dts) < 2:
         raise CocdError("timestep needs at least two time steps")
@@ -80,6 +80,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         + [(n, round(max(times) / dts[0]))] * (seeds if twin_tol > 0 else 0),
         out=out,
         progress=progress,
+        workers=cfg.workers,
     )
 
     def job(seed: int, dt: float, label: str, how: Settings) -> base.CollapseJob:
