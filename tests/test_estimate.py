@@ -50,6 +50,9 @@ def test_shipped_rate_then_the_recorded_run(tmp_path, monkeypatch):
         pytest.approx(60.0, rel=1e-6)
     )
     assert estimate.record()["workers"] == 4
+    # Three quarters of it kept (read back): a quarter is left to make.
+    estimate.kept(0.25, "3 of 4 runs kept", progress=lines.append)
+    assert lines[-1] == "hard: 3 of 4 runs kept; the rest should take 15 s"
 
 
 def test_unreadable_record_falls_back_to_the_shipped_rate(tmp_path, monkeypatch):

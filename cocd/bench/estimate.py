@@ -33,6 +33,7 @@ __all__ = [
     "RATES",
     "announce",
     "format_seconds",
+    "kept",
     "made",
     "record",
     "work",
@@ -124,6 +125,7 @@ def announce(
     largest = int(max((n for n, _ in pairs), default=0))
     rate, source = _rate(name, Path(out))
     seconds = rate * units / workers
+    _current["seconds"] = seconds
     line = (
         f"{name}: {count} solve{'' if count == 1 else 's'}, the largest of {largest} grains; "
         "expected "
@@ -131,6 +133,15 @@ def announce(
     )
     progress(line)
     return seconds
+
+
+def kept(fraction: float, what: str, progress: Callable[[str], None] = print) -> None:
+    """Part of the announced work is already done and kept (runs read back): say how
+    long the other ``fraction`` of it should take, after ``what`` (e.g. ``6 of 27 runs
+    kept``)."""
+    if _current.get("seconds") is not None:
+        seconds = _current["seconds"] * min(max(fraction, 0.0), 1.0)
+        progress(f"{_current['name']}: {what}; the rest should take {format_seconds(seconds)}")
 
 
 def made(n: float, count: float) -> None:

@@ -459,6 +459,13 @@ def collapse_runs(
             series[k] = kept
         else:
             todo.append(k)
+    if todo and len(todo) < len(jobs):
+        steps = [job.kwargs["until"] / job.kwargs["dt"] for job in jobs]
+        estimate.kept(
+            sum(steps[k] for k in todo) / sum(steps),
+            f"{len(jobs) - len(todo)} of {len(jobs)} runs kept",
+            progress,
+        )
     if workers == 1 or len(todo) < 2:
         for k in todo:
             series[k] = _collapse(jobs[k], progress)
