@@ -520,9 +520,35 @@ def _collapse_apart(
     jobs: Sequence[CollapseJob], workers: int, progress: Callable[[str], Any]
 ) -> list[CollapseSeries]:
     import multiprocessing
+    import signal
+    import threading
     from multiprocessing.connection import wait
 
-    context = multiprocessing.get_context("spawn")
+    # Ctrl-C, or a batch system's SIGTERM, is noted here and acted on by the loop at its
+    # next look (raised from the handler, it could land in a finaliser and be lost).
+    asked: list[int] = []
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        for number in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(number) is not signal.SIG_IGN:
+                handlers[number] = signal.signal(number, lambda n, _: asked.append(n))
+    try:
+        return _collapse_with(
+            jobs, workers, progress, multiprocessing.get_context("spawn"), wait, asked
+        )
+    finally:
+        for number, handler in handlers.items():
+            signal.signal(number, signal.SIG_DFL if handler is None else handler)
+
+
+def _collapse_with(
+    jobs: Sequence[CollapseJob],
+    workers: int,
+    progress: Callable[[str], Any],
+    context: Any,
+    wait: Callable[..., Any],
+    asked: list[int],
+) -> list[CollapseSeries]:
     results: dict[int, CollapseSeries] = {}
     running: dict[Any, tuple[int, Any]] = {}  # parent's end of the pipe -> (job, process)
     waiting = list(range(len(jobs)))
@@ -530,6 +556,8 @@ def _collapse_apart(
     saved = {name: os.environ.get(name) for name in ONE_THREAD}
     try:
         while running or (waiting and failure is None):
+            if asked:
+                raise KeyboardInterrupt
             while waiting and failure is None and len(running) < workers:
                 k = waiting.pop(0)
                 mine, theirs = context.Pipe(duplex=False)
