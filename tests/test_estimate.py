@@ -53,6 +53,18 @@ def test_shipped_rate_then_the_recorded_run(tmp_path, monkeypatch):
     # Three quarters of it kept (read back): a quarter is left to make.
     estimate.kept(0.25, "3 of 4 runs kept", progress=lines.append)
     assert lines[-1] == "hard: 3 of 4 runs kept; the rest should take 15 s"
+    # The kept runs' own timing: 3 units made in 90 s of one worker are 30 s a unit,
+    # so the quarter left (of the announced work), shared by 4 workers, takes
+    # 30 * work / 4 / 4 s.
+    estimate.kept(0.25, "3 of 4 runs kept", progress=lines.append, measured=(90.0, 3.0))
+    rest = 30.0 * estimate.work(solves) / 16
+    assert lines[-1] == (
+        f"hard: 3 of 4 runs kept; the rest should take {estimate.format_seconds(rest)} "
+        "(at the kept runs' rate)"
+    )
+    # Kept runs without a timing (made before it was kept): the announced rate.
+    estimate.kept(0.25, "3 of 4 runs kept", progress=lines.append, measured=(0.0, 3.0))
+    assert lines[-1] == "hard: 3 of 4 runs kept; the rest should take 15 s"
 
 
 def test_unreadable_record_falls_back_to_the_shipped_rate(tmp_path, monkeypatch):

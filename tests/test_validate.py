@@ -18,6 +18,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
+from cocd.bench import estimate
 from cocd.cli import app
 from cocd.errors import CocdError
 from cocd.studies import stability
@@ -110,6 +111,11 @@ def test_a_failed_run_among_workers_stops_the_rest_and_keeps_what_finished(tmp_p
     assert any(line.startswith("  good: step 50/50") for line in lines)
     with pytest.raises(CocdError, match="two runs of the case would share the folder"):
         validate.collapse_runs([jobs[1], jobs[1]], workers=2, progress=lines.append)
+    # Called again: the kept run is read back, and the one left is timed at its rate.
+    estimate.announce("t", [(30, 100)], out=tmp_path, progress=lines.append)
+    validate.collapse_runs(jobs[1:], workers=1, progress=lines.append)
+    rest = r"t: 1 of 2 runs kept; the rest should take \d+ s \(at the kept runs' rate\)"
+    assert any(re.fullmatch(rest, line) for line in lines), lines
 
 
 def test_twin_run_can_be_left_out_and_a_bad_twin_tolerance_is_refused(tmp_path):

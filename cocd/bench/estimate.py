@@ -135,13 +135,31 @@ def announce(
     return seconds
 
 
-def kept(fraction: float, what: str, progress: Callable[[str], None] = print) -> None:
+def kept(
+    fraction: float,
+    what: str,
+    progress: Callable[[str], None] = print,
+    *,
+    measured: tuple[float, float] | None = None,
+) -> None:
     """Part of the announced work is already done and kept (runs read back): say how
     long the other ``fraction`` of it should take, after ``what`` (e.g. ``6 of 27 runs
-    kept``)."""
-    if _current.get("seconds") is not None:
-        seconds = _current["seconds"] * min(max(fraction, 0.0), 1.0)
-        progress(f"{_current['name']}: {what}; the rest should take {format_seconds(seconds)}")
+    kept``).
+
+    ``measured``: ``(seconds, work units)`` the kept part took when it was made, one
+    worker's seconds. When given, the rest is timed at that rate, the command's own on
+    this problem size, rather than at the announced one.
+    """
+    if _current.get("seconds") is None:
+        return
+    rest = min(max(fraction, 0.0), 1.0)
+    seconds, units = measured if measured is not None else (0.0, 0.0)
+    if seconds > 0 and units > 0 and math.isfinite(seconds / units):
+        rest_s = seconds / units * _current["work"] * rest / _current["workers"]
+        source = " (at the kept runs' rate)"
+    else:
+        rest_s, source = _current["seconds"] * rest, ""
+    progress(f"{_current['name']}: {what}; the rest should take {format_seconds(rest_s)}{source}")
 
 
 def made(n: float, count: float) -> None:

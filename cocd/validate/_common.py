@@ -461,10 +461,15 @@ def collapse_runs(
             todo.append(k)
     if todo and len(todo) < len(jobs):
         steps = [job.kwargs["until"] / job.kwargs["dt"] for job in jobs]
+        read = [s for s in series if s is not None]
         estimate.kept(
             sum(steps[k] for k in todo) / sum(steps),
             f"{len(jobs) - len(todo)} of {len(jobs)} runs kept",
             progress,
+            measured=(
+                sum(s.compute_s for s in read),
+                estimate.work([(s.n_grains, s.steps) for s in read]),
+            ),
         )
     if workers == 1 or len(todo) < 2:
         for k in todo:
