@@ -108,38 +108,87 @@ class CollapseSeries:
         return float((s.detect_time + s.setup_time + s.solve_time).sum())
 
 
-def collapse_series(
-    folder: Path,
+@dataclass(frozen=True)
+class CollapseJob:
+    """One packing's run of a validation case (:func:`collapse_job`): its folder, its
+    column (``params``, :func:`cocd.builders.column_collapse`'s arguments), how it is
+    run (backend, tolerance, fallbacks, whether to start over), its steps and frames,
+    and how it is measured (:func:`collapse_series`)."""
+
+    folder: Path
+    label: str
+    params: dict[str, Any]
+    how: RunSettings
+    announce: str
+    dt: float
+    until: float
+    frame_dt: float
+    profile_times: tuple[float, ...] = ()
+    max_iter: int | None = None
+    solver_options: dict[str, Any] | None = None
+    bin_width: float | None = None
+    x_max: float | None = None
+
+    @property
+    def steps(self) -> float:
+        return self.until / self.dt
+
+
+def collapse_job(
+    out: Path,
+    case: str,
+    label: str,
+    seed: int,
     params: dict[str, Any],
     how: RunSettings,
     *,
-    label: str,
     dt: float,
     until: float,
     frame_dt: float,
     profile_times: Sequence[float] = (),
+    what: str = "",
     max_iter: int | None = None,
     solver_options: dict[str, Any] | None = None,
     bin_width: float | None = None,
     x_max: float | None = None,
-    progress: Callable[[str], Any] = print,
-) -> CollapseSeries:
-    """Run (or resume, or just read) one ``column_collapse`` and measure it.
+) -> CollapseJob:
+    """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
 
-    ``params`` are :func:`cocd.builders.column_collapse`'s arguments; ``how`` the
-    backend, tolerance, fallbacks and whether to start over. Frames
-    are saved every ``frame_dt`` seconds (a whole number of steps). Profiles
-    are measured at ``profile_times``, each of which must fall on a saved
-    frame; bins are ``bin_width`` wide (default: one mean diameter) from the
-    back wall to ``x_max`` (default: the bed's end).
+    ``what`` describes the run in the progress line (default: backend and tolerance);
+    the rest are :class:`CollapseJob`'s fields.
+    """
+    label = seed_label(label, seed)
+    what = what or f"{how.solver}, tol {how.tol:g}"
+    return CollapseJob(
+        folder=Path(out) / "runs" / case / label,
+        label=label,
+        params=seed_params(params, seed),
+        how=RunSettings(solver=how.solver, tol=how.tol, fallback=how.fallback, fresh=how.fresh),
+        announce=f"{case}: {label} ({what}) to t = {until:g} s",
+        dt=dt,
+        until=until,
+        frame_dt=frame_dt,
+        profile_times=tuple(float(t) for t in profile_times),
+        max_iter=max_iter,
+        solver_options=solver_options,
+        bin_width=bin_width,
+        x_max=x_max,
+    )
+
+
+def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) -> CollapseSeries:
+    """Run (or resume, or just read) ``job``'s ``column_collapse`` and measure it.
+
+    Frames are saved every ``job.frame_dt`` seconds (a whole number of steps).
+    Profiles are measured at ``job.profile_times``, each of which must fall on a
+    saved frame; bins are ``job.bin_width`` wide (default: one mean diameter) from
+    the back wall to ``job.x_max`` (default: the bed's end).
     """
     from cocd.errors import SolverError
     from cocd.runs import MEASURED_FILES, RUN_FILE, Progress, run
 
-    config, key = _run_key(
-        params, how, dt, until, frame_dt, profile_times, max_iter, solver_options, bin_width, x_max
-    )
-    folder = Path(folder)
+    config, key = _run_key(job)
+    folder, label, how = job.folder, job.label, job.how
     folder.mkdir(parents=True, exist_ok=True)
     last = [time.perf_counter()]
 
@@ -176,50 +225,42 @@ def collapse_series(
         ) from None
     if summary.resumed_from_step and summary.steps > summary.resumed_from_step:
         progress(f"  {label}: resumed at step {summary.resumed_from_step}")
-    series = measure_series(summary.path, label, profile_times, bin_width, x_max, dt)
+    series = measure_series(
+        summary.path, label, job.profile_times, job.bin_width, job.x_max, job.dt
+    )
     write_measured(folder, key, series)
     return dataclasses.replace(series, steps_made=summary.steps - (summary.resumed_from_step or 0))
 
 
-def _run_key(
-    params: dict[str, Any],
-    how: RunSettings,
-    dt: float,
-    until: float,
-    frame_dt: float,
-    profile_times: Sequence[float] = (),
-    max_iter: int | None = None,
-    solver_options: dict[str, Any] | None = None,
-    bin_width: float | None = None,
-    x_max: float | None = None,
-) -> tuple[Any, dict[str, Any]]:
+def _run_key(job: CollapseJob) -> tuple[Any, dict[str, Any]]:
     """The run's configuration, and the key its kept measurements are filed under."""
     from cocd.config import RunConfig
 
+    how, dt, frame_dt = job.how, job.dt, job.frame_dt
     every = max(1, round(frame_dt / dt))
     if abs(every * dt - frame_dt) > 1e-9 * frame_dt:
         raise CocdError(f"frame interval {frame_dt:g} s is not a whole number of steps of {dt:g}")
     run_table: dict[str, Any] = {
         "dt": dt,
-        "until": until,
+        "until": job.until,
         "solver": how.solver,
         "tol": how.tol,
         "frame_every": every,
         "fallback": list(how.fallback),
-        "solver_options": dict(solver_options or {}),
+        "solver_options": dict(job.solver_options or {}),
     }
-    if max_iter is not None:
-        run_table["max_iter"] = max_iter
+    if job.max_iter is not None:
+        run_table["max_iter"] = job.max_iter
     config = RunConfig.model_validate(
-        {"builder": "column_collapse", "params": params, "run": run_table}
+        {"builder": "column_collapse", "params": job.params, "run": run_table}
     )
     key = {
         "version": MEASURE_VERSION,
         "config": config.resolved(),
         "measure": {
-            "profile_times": [float(t) for t in profile_times],
-            "bin_width": bin_width,
-            "x_max": x_max,
+            "profile_times": [float(t) for t in job.profile_times],
+            "bin_width": job.bin_width,
+            "x_max": job.x_max,
         },
     }
     return config, key
@@ -381,46 +422,6 @@ def pm(row: Any, column: str, digits: int = 3) -> str:
     return text + ("" if not np.isfinite(sd) else f" +- {sd:.{digits}g}")
 
 
-@dataclass(frozen=True)
-class CollapseJob:
-    """One packing's run of a validation case: its folder, its column and how it is run."""
-
-    folder: Path
-    label: str
-    params: dict[str, Any]
-    how: RunSettings
-    announce: str
-    kwargs: dict[str, Any]
-
-
-def collapse_job(
-    out: Path,
-    case: str,
-    label: str,
-    seed: int,
-    params: dict[str, Any],
-    how: RunSettings,
-    *,
-    what: str = "",
-    **kwargs: Any,
-) -> CollapseJob:
-    """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
-
-    ``what`` describes the run in the progress line (default: backend and tolerance);
-    ``kwargs`` go to :func:`collapse_series` (``dt`` and ``until`` among them).
-    """
-    label = seed_label(label, seed)
-    what = what or f"{how.solver}, tol {how.tol:g}"
-    return CollapseJob(
-        folder=Path(out) / "runs" / case / label,
-        label=label,
-        params=seed_params(params, seed),
-        how=RunSettings(solver=how.solver, tol=how.tol, fallback=how.fallback, fresh=how.fresh),
-        announce=f"{case}: {label} ({what}) to t = {kwargs['until']:g} s",
-        kwargs=kwargs,
-    )
-
-
 #: The worker processes' environment: every thread pool (MKL's PARDISO, OpenMP,
 #: OpenBLAS, numba) on one thread, so that the runs share the cores instead of
 #: fighting for them. On 2 cores, 30 steps of a 5725-grain Fig. 9 run took the same
@@ -460,7 +461,7 @@ def collapse_runs(
         else:
             todo.append(k)
     if todo and len(todo) < len(jobs):
-        steps = [job.kwargs["until"] / job.kwargs["dt"] for job in jobs]
+        steps = [job.steps for job in jobs]
         read = [s for s in series if s is not None]
         estimate.kept(
             sum(steps[k] for k in todo) / sum(steps),
@@ -485,16 +486,13 @@ def collapse_runs(
 
 
 def _kept(job: CollapseJob) -> CollapseSeries | None:
-    kw = dict(job.kwargs)
-    _, key = _run_key(job.params, job.how, kw.pop("dt"), kw.pop("until"), kw.pop("frame_dt"), **kw)
+    _, key = _run_key(job)
     return read_measured(job.folder, key, job.label)
 
 
 def _collapse(job: CollapseJob, progress: Callable[[str], Any]) -> CollapseSeries:
     progress(job.announce)
-    return collapse_series(
-        job.folder, job.params, job.how, label=job.label, progress=progress, **job.kwargs
-    )
+    return collapse_series(job, progress)
 
 
 def _worker(job: CollapseJob, conn: Any) -> None:

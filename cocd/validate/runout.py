@@ -16,7 +16,7 @@ What they are set against:
   Mangeney et al.): ``H0 / H_f ~ a^0.69`` in wide channels, with a regime
   change at ``a`` of order 3 to 7.
 
-Every simulation is a resumable run file (:func:`cocd.bench.validate.collapse_series`).
+Every simulation is a resumable run file (:func:`cocd.validate._common.collapse_series`).
 """
 
 from __future__ import annotations
