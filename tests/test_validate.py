@@ -238,6 +238,32 @@ def test_cocd_against_nscd_over_two_packings_gives_mean_and_spread(tmp_path):
     assert "2 packings" in summary
 
 
+def test_nscd_twin_measures_the_reference_against_its_own_tolerance(tmp_path):
+    """--nscd-twin-tol runs nscd again per packing at another tolerance: its profile
+    difference from the first nscd run and its front gap are columns of the table."""
+    case = dict(n=30, times_T=[1.0], solver="clarabel", nscd_tol=1e-6, nscd_twin_tol=1e-3)
+    table = nscd.STUDY(out=tmp_path, progress=_quiet([]), **case)
+    (row,) = table.itertuples()
+    twin = tmp_path / "runs" / "nscd" / "n30_nscd-symmetric_tol0.001" / "measured.npz"
+    main = tmp_path / "runs" / "nscd" / "n30_nscd-symmetric" / "measured.npz"
+    with np.load(twin) as a, np.load(main) as b:
+        front_twin = np.interp(row.t, a["times"], a["front"])
+        front_nscd = np.interp(row.t, b["times"], b["front"])
+        difference = validate.profile_error(a["profiles"][0], b["profiles"][0])
+    assert row.nscd_twin_difference == pytest.approx(difference)
+    assert row.nscd_twin_front_gap_d == pytest.approx((front_twin - front_nscd) / row.d_mean_m)
+    # A looser Gauss-Seidel moves the reference less than the convexification does here.
+    assert 0.0 <= row.nscd_twin_difference < 0.05
+    summary = json.loads((tmp_path / "nscd.meta.json").read_text())["summary"]
+    assert "NSCD at tol 0.001 against NSCD at 1e-06" in summary
+    assert "nscd_twin_difference_4d" in pd.read_csv(tmp_path / "nscd_ensemble.csv")
+    result = runner.invoke(
+        app, ["validate", "nscd", "--n", "30", "--nscd-twin-tol", "1e-5", "--out", str(tmp_path)]
+    )
+    assert result.exit_code != 0 and "Traceback" not in result.output
+    assert "nscd_twin_tol must be 0 (no twin) or a positive tolerance other than" in result.output
+
+
 def test_an_erodible_layer_lengthens_the_runout(tmp_path):
     table = erodible.STUDY(
         n=60,

@@ -635,6 +635,17 @@ def positive_int(name: str, value: int, low: int = 1) -> int:
     return int(value)
 
 
+def twin_tolerance(name: str, value: float, tol: float, tol_name: str = "tol") -> float:
+    """A twin run's tolerance: 0 (no twin) or a positive one other than ``tol``."""
+    twin = float(value)
+    if twin != 0 and not (math.isfinite(twin) and twin > 0 and not math.isclose(twin, tol)):
+        raise CocdError(
+            f"{name} must be 0 (no twin) or a positive tolerance other than {tol_name} "
+            f"({tol:g}), not {value!r}"
+        )
+    return twin
+
+
 def positive_list(name: str, values: Sequence[float]) -> list[float]:
     out = [float(v) for v in values]
     if not out or any(not (math.isfinite(v) and v > 0.0) for v in out):

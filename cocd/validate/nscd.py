@@ -43,6 +43,11 @@ class Settings(CollapseSettings):
     seeds: int = option(
         1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1 (same lattice sites)."
     )
+    nscd_twin_tol: float = option(
+        0.0,
+        "Tolerance of a second nscd run per packing: how far the reference moves with its "
+        "tolerance (0: no twin).",
+    )
     nscd_symmetric: bool = option(
         True,
         "Alternate nscd's sweep direction or not.",
@@ -74,9 +79,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if times[0] <= 0.0:
         raise CocdError(f"times_T {times_T} round to t = 0 s: ask for later times")
     seeds = base.positive_int("seeds", cfg.seeds)
+    twin_tol = base.twin_tolerance("nscd_twin_tol", cfg.nscd_twin_tol, cfg.nscd_tol, "nscd_tol")
+    per_seed = 3 if twin_tol else 2
     estimate.announce(
         "nscd",
-        [(n, 2 * seeds * round(max(times) / dt))],
+        [(n, per_seed * seeds * round(max(times) / dt))],
         out=out,
         progress=progress,
         workers=cfg.workers,
@@ -88,12 +95,16 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     nscd_how = dataclasses.replace(
         cfg, solver="nscd", tol=cfg.nscd_tol, fallback=tuple(cfg.nscd_fallback)
     )
+    runs: list[tuple[Any, dict[str, Any], str]] = [
+        (cfg, {}, f"n{n}_{cfg.solver.replace(':', '-')}"),
+        (nscd_how, nscd_options, f"n{n}_nscd" + ("-symmetric" if cfg.nscd_symmetric else "")),
+    ]
+    if twin_tol:  # nscd again, at the twin's tolerance
+        twin_how = dataclasses.replace(nscd_how, tol=twin_tol)
+        runs.append((twin_how, nscd_options, f"{runs[1][2]}_tol{twin_tol:g}"))
     jobs = []
     for seed in range(seeds):
-        for how, extra in ((cfg, dict[str, Any]()), (nscd_how, nscd_options)):
-            label = f"n{n}_{how.solver.replace(':', '-')}"
-            if how.solver == "nscd" and cfg.nscd_symmetric:
-                label += "-symmetric"
+        for how, extra, label in runs:
             jobs.append(
                 base.collapse_job(
                     out,
@@ -110,13 +121,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 )
             )
     made = base.collapse_runs(jobs, cfg.workers, progress)
-    every = [made[2 * seed : 2 * seed + 2] for seed in range(seeds)]
+    every = [made[per_seed * seed : per_seed * (seed + 1)] for seed in range(seeds)]
     first = every[0]
     rows: list[dict[str, Any]] = []
-    for seed, runs in enumerate(every):
-        rows += _rows(runs, times, period, seed)
+    for seed, mine in enumerate(every):
+        rows += _rows(mine, times, period, seed)
     table = pd.DataFrame(rows)
-    ensemble = base.ensemble(table, ["t", "t_over_T"], _ENSEMBLE)
+    ensemble = base.ensemble(table, ["t", "t_over_T"], [*_ENSEMBLE, *(_TWIN if twin_tol else ())])
     files = report.write_table(
         out,
         "nscd_ensemble",
@@ -125,15 +136,21 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         intro="Per time, over the packings (`seeds` of them): mean and sample standard "
         "deviation (`_sd`, empty for one packing) of the profile differences and of the "
         "fronts in mean diameters from the back wall (`front_*_d`) and their gap "
-        "(`front_gap_d` = NSCD - COCD).",
+        "(`front_gap_d` = NSCD - COCD)"
+        + (
+            f"; `nscd_twin_*`: the same for NSCD at tol {twin_tol:g} against NSCD at "
+            f"{cfg.nscd_tol:g}."
+            if twin_tol
+            else "."
+        ),
     )
     figures = [
         base.profile_figure(
             out / "nscd_profiles.png",
-            first,
+            first[:2],
             [f"COCD ({cfg.solver}, tol {cfg.tol:g})", f"NSCD (nscd, tol {cfg.nscd_tol:g})"],
         ),
-        _front_figure(out / "nscd_front.png", every, period, cfg),
+        _front_figure(out / "nscd_front.png", [mine[:2] for mine in every], period, cfg),
     ]
     fallbacks = int(table.groupby("seed").fallback_steps_nscd.first().sum())
     summary = _summary(ensemble, seeds, first[0], period, dt, cfg, fallbacks)
@@ -143,7 +160,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "(`surface_front`, a grain's reach) from the back wall in metres and in mean "
         "diameters (`_d`); `seed`: the packing; residuals are each scheme's own "
         "(`ccp_residual` for COCD, `coulomb_residual` for NSCD); `compute_s_*`: detection, "
-        "set-up and solve time of each whole run."
+        "set-up and solve time of each whole run"
+        + (
+            f"; `nscd_twin_*`: NSCD at tol {twin_tol:g} against NSCD at {cfg.nscd_tol:g}, "
+            "profile difference relative to the latter and front gap (twin - NSCD) in "
+            "diameters."
+            if twin_tol
+            else "."
+        )
     )
     base.finish(
         out,
@@ -166,10 +190,18 @@ _ENSEMBLE = (
     "front_gap_d",
 )
 
+#: The twin's columns (``nscd_twin_tol``): NSCD at another tolerance against NSCD.
+_TWIN = (
+    "nscd_twin_difference",
+    "nscd_twin_difference_4d",
+    "nscd_twin_front_gap_d",
+)
+
 
 def _rows(runs: list[Any], times: list[float], period: float, seed: int) -> list[dict]:
-    """One row per time of one packing: the two runs' profiles and fronts compared."""
-    cocd_run, nscd_run = runs
+    """One row per time of one packing: the two runs' profiles and fronts compared (and
+    NSCD's twin against NSCD, when there is one)."""
+    cocd_run, nscd_run, *twin = runs
     rows = []
     for k, t in enumerate(times):
         front_cocd = float(np.interp(t, cocd_run.times, cocd_run.front))
@@ -200,6 +232,20 @@ def _rows(runs: list[Any], times: list[float], period: float, seed: int) -> list
             row[f"max_residual_{name}"] = float(
                 (s.stats.ccp_residual if name == "cocd" else s.stats.coulomb_residual).max()
             )
+        if twin:
+            (other,) = twin
+            row["nscd_twin_difference"] = base.profile_error(
+                other.profiles[k], nscd_run.profiles[k]
+            )
+            row["nscd_twin_difference_4d"] = base.profile_error(
+                base.coarsen(other.profiles[k], base.COARSE),
+                base.coarsen(nscd_run.profiles[k], base.COARSE),
+            )
+            row["nscd_twin_front_gap_d"] = (
+                float(np.interp(t, other.times, other.front)) - front_nscd
+            ) / d
+            row["compute_s_nscd_twin"] = other.compute_s
+            row["fallback_steps_nscd_twin"] = int((other.stats.failures.fillna("") != "").sum())
         rows.append(row)
     return rows
 
@@ -251,6 +297,19 @@ def _summary(
         for _, row in ensemble.iterrows()
     )
     final = ensemble.iloc[-1]
+    twin = ""
+    if "nscd_twin_difference" in ensemble:
+        twin = (
+            f"NSCD at tol {cfg.nscd_twin_tol:g} against NSCD at {cfg.nscd_tol:g}, the "
+            "reference's own sensitivity to its tolerance: profiles differ by "
+            + "; ".join(
+                f"{pm(row, 'nscd_twin_difference')} "
+                f"({pm(row, 'nscd_twin_difference_4d')} on 4 d) at {row.t_over_T:.2g} T"
+                for _, row in ensemble.iterrows()
+            )
+            + f", fronts by {pm(final, 'nscd_twin_front_gap_d')} d at "
+            f"{final.t_over_T:.2g} T. "
+        )
     return (
         f"2D collapse of {ref.n_grains} discs (mu = {cfg.mu:g}, rough horizontal bed, "
         f"dt = {dt:g} s, T = sqrt(H0/g) = {period:.4g} s), {seeds} "
@@ -263,7 +322,8 @@ def _summary(
         f"{pm(final, 'front_gap_d')} d. Steps of `nscd` answered by its fallback "
         f"(`{', '.join(cfg.nscd_fallback) or 'none'}`, the same law): "
         f"{int(fallbacks)} over the packings. "
-        "The seed (Fig. 4: 7740 discs in COCD against 6036 in a published NSCD run) "
+        + twin
+        + "The seed (Fig. 4: 7740 discs in COCD against 6036 in a published NSCD run) "
         "finds the two methods' profiles 'very close'."
     )
 

@@ -66,14 +66,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     params = base.base_params(n, cfg.mu)
     frame_dt = base.frame_interval(times, dts)
     seeds = base.positive_int("seeds", cfg.seeds)
-    twin_tol = float(cfg.twin_tol)
-    if twin_tol != 0 and not (
-        math.isfinite(twin_tol) and twin_tol > 0 and not math.isclose(twin_tol, cfg.tol)
-    ):
-        raise CocdError(
-            f"twin_tol must be 0 (no twin) or a positive tolerance other than tol "
-            f"({cfg.tol:g}), not {cfg.twin_tol!r}"
-        )
+    twin_tol = base.twin_tolerance("twin_tol", cfg.twin_tol, cfg.tol)
     estimate.announce(
         "timestep",
         [(n, round(max(times) / dt)) for dt in dts for _ in range(seeds)]
