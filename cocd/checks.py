@@ -1,7 +1,7 @@
 """Checks of user input: scenes, contact detection, measurements, builders, scene files.
 
 Each raises :class:`~cocd.errors.SceneError` with a one-line message naming the
-input (validation against the papers is another thing: :mod:`cocd.bench.validate`).
+input (validation against the papers is another thing: :mod:`cocd.validate`).
 
 - :func:`checked` wraps a function so that arguments of the wrong type (a string
   for a size, ``None`` for an angle, ``3.5`` for a count) are refused, by their

@@ -62,6 +62,11 @@ def test_shipped_rate_then_the_recorded_run(tmp_path, monkeypatch):
         f"hard: 3 of 4 runs kept; the rest should take {estimate.format_seconds(rest)} "
         "(at the kept runs' rate)"
     )
+    # One run left: of the 4 workers, one is busy.
+    estimate.kept(0.25, "3 of 4 runs kept", progress=lines.append, measured=(90.0, 3.0), runs=1)
+    assert lines[-1].endswith(f"take {estimate.format_seconds(4 * rest)} (at the kept runs' rate)")
+    estimate.kept(0.25, "3 of 4 runs kept", progress=lines.append, runs=1)
+    assert lines[-1] == "hard: 3 of 4 runs kept; the rest should take 60 s"
     # Kept runs without a timing (made before it was kept): the announced rate.
     estimate.kept(0.25, "3 of 4 runs kept", progress=lines.append, measured=(0.0, 3.0))
     assert lines[-1] == "hard: 3 of 4 runs kept; the rest should take 15 s"

@@ -141,24 +141,30 @@ def kept(
     progress: Callable[[str], None] = print,
     *,
     measured: tuple[float, float] | None = None,
+    runs: int | None = None,
 ) -> None:
     """Part of the announced work is already done and kept (runs read back): say how
     long the other ``fraction`` of it should take, after ``what`` (e.g. ``6 of 27 runs
     kept``).
 
-    ``measured``: ``(seconds, work units)`` the kept part took when it was made, one
-    worker's seconds. When given, the rest is timed at that rate, the command's own on
-    this problem size, rather than at the announced one.
+    ``measured``: ``(seconds, work units)`` of kept runs made with the same backend and
+    tolerance as the rest, one worker's solve seconds (detection, set-up and solve; the
+    rest of a run, writing frames and measuring them, is left out, so the figure leans
+    low on small problems). When given, the rest is timed at that rate, the command's
+    own on this problem size, rather than at the announced one. ``runs``: how many runs
+    are left; fewer than the workers keep only that many busy.
     """
     if _current.get("seconds") is None:
         return
     rest = min(max(fraction, 0.0), 1.0)
+    workers = _current["workers"]
+    busy = workers if runs is None else max(1, min(workers, int(runs)))
     seconds, units = measured if measured is not None else (0.0, 0.0)
     if seconds > 0 and units > 0 and math.isfinite(seconds / units):
-        rest_s = seconds / units * _current["work"] * rest / _current["workers"]
+        rest_s = seconds / units * _current["work"] * rest / busy
         source = " (at the kept runs' rate)"
     else:
-        rest_s, source = _current["seconds"] * rest, ""
+        rest_s, source = _current["seconds"] * rest * workers / busy, ""
     progress(f"{_current['name']}: {what}; the rest should take {format_seconds(rest_s)}{source}")
 
 

@@ -462,15 +462,30 @@ def collapse_runs(
             todo.append(k)
     if todo and len(todo) < len(jobs):
         steps = [job.steps for job in jobs]
-        read = [s for s in series if s is not None]
+        # The kept runs' rate, if they were made as the rest will be (same backend and
+        # tolerance): an ipm run's rate says little of an nscd run's.
+        ways = {(jobs[k].how.solver, jobs[k].how.tol) for k in todo}
+        like = [
+            s
+            for job, s in zip(jobs, series, strict=True)
+            if s is not None and (job.how.solver, job.how.tol) in ways
+        ]
+        kept_ways = {
+            (job.how.solver, job.how.tol)
+            for job, s in zip(jobs, series, strict=True)
+            if s is not None
+        }
+        measured = (
+            (sum(s.compute_s for s in like), estimate.work([(s.n_grains, s.steps) for s in like]))
+            if ways <= kept_ways
+            else None
+        )
         estimate.kept(
             sum(steps[k] for k in todo) / sum(steps),
             f"{len(jobs) - len(todo)} of {len(jobs)} runs kept",
             progress,
-            measured=(
-                sum(s.compute_s for s in read),
-                estimate.work([(s.n_grains, s.steps) for s in read]),
-            ),
+            measured=measured,
+            runs=len(todo),
         )
     if workers == 1 or len(todo) < 2:
         for k in todo:

@@ -1,6 +1,8 @@
 """``cocd validate nscd``, the seed's Fig. 4: the same collapse with a convex backend
 (the COCD scheme) and with ``nscd`` (the non-convex Coulomb law, Gauss-Seidel);
-profiles at times in units of ``sqrt(H0 / g)`` and their relative difference."""
+profiles at times in units of ``sqrt(H0 / g)`` and their relative difference. With
+``nscd_twin_tol``, ``nscd`` is run a second time per packing at that tolerance, which
+measures how far the reference itself moves with its tolerance."""
 
 from __future__ import annotations
 
@@ -63,7 +65,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     nscd's sweeps (symmetric Gauss-Seidel), which got through a step of the
     400-disc collapse where forward sweeps stalled above 1e-5 for 100 000 sweeps.
     Returns the table written to ``nscd.csv``: per time, the relative difference
-    of the two profiles and both fronts.
+    of the two profiles and both fronts (and, with ``nscd_twin_tol``, the twin's
+    ``nscd_twin_*`` columns against the first nscd run).
     """
     from cocd.builders import G
 
@@ -152,8 +155,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         ),
         _front_figure(out / "nscd_front.png", [mine[:2] for mine in every], period, cfg),
     ]
-    fallbacks = int(table.groupby("seed").fallback_steps_nscd.first().sum())
-    summary = _summary(ensemble, seeds, first[0], period, dt, cfg, fallbacks)
+    firsts = table.groupby("seed").first()
+    fallbacks = int(firsts.fallback_steps_nscd.sum())
+    twin_fallbacks = int(firsts.fallback_steps_nscd_twin.sum()) if twin_tol else 0
+    summary = _summary(ensemble, seeds, first[0], period, dt, cfg, fallbacks, twin_fallbacks)
     intro = (
         "`profile_difference` = ||h_nscd - h_cocd|| / ||h_cocd|| over bins one mean diameter "
         "wide, `profile_difference_4d` over profiles averaged on 4 diameters; fronts "
@@ -164,7 +169,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         + (
             f"; `nscd_twin_*`: NSCD at tol {twin_tol:g} against NSCD at {cfg.nscd_tol:g}, "
             "profile difference relative to the latter and front gap (twin - NSCD) in "
-            "diameters."
+            "diameters; `compute_s_nscd_twin`, `fallback_steps_nscd_twin`: the twin's cost "
+            "and steps answered by the fallback."
             if twin_tol
             else "."
         )
@@ -288,6 +294,7 @@ def _summary(
     dt: float,
     cfg: Settings,
     fallbacks: int,
+    twin_fallbacks: int = 0,
 ) -> str:
     """The summary, every number taken from ``ensemble``."""
     pm = base.pm
@@ -308,7 +315,8 @@ def _summary(
                 for _, row in ensemble.iterrows()
             )
             + f", fronts by {pm(final, 'nscd_twin_front_gap_d')} d at "
-            f"{final.t_over_T:.2g} T. "
+            f"{final.t_over_T:.2g} T; the twin's steps answered by the fallback: "
+            f"{twin_fallbacks}. "
         )
     return (
         f"2D collapse of {ref.n_grains} discs (mu = {cfg.mu:g}, rough horizontal bed, "
