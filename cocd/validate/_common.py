@@ -102,6 +102,11 @@ class CollapseSeries:
         return float(np.max(values)) if values.size and np.all(np.isfinite(values)) else np.nan
 
     @property
+    def fallback_steps(self) -> int:
+        """Steps answered by a fallback backend (the first one failed them)."""
+        return int((self.stats.failures.fillna("") != "").sum())
+
+    @property
     def compute_s(self) -> float:
         """Seconds of detection, set-up and solving summed over the steps."""
         s = self.stats
@@ -395,6 +400,13 @@ def profile_error(h: ArrayLike, reference: ArrayLike) -> float:
     return float(np.linalg.norm(h - ref) / norm)
 
 
+def profile_errors(h: ArrayLike, reference: ArrayLike) -> tuple[float, float]:
+    """:func:`profile_error` on one-diameter bins and on bins :data:`COARSE` times wider."""
+    return profile_error(h, reference), profile_error(
+        coarsen(h, COARSE), coarsen(reference, COARSE)
+    )
+
+
 def coarsen(h: ArrayLike, k: int) -> FloatArray:
     """A profile on bins ``k`` times wider: the mean of each run of ``k`` bins (the last
     run padded with zeros)."""
@@ -466,18 +478,16 @@ def collapse_runs(
         # tolerance): an ipm run's rate says little of an nscd run's.
         ways = {(jobs[k].how.solver, jobs[k].how.tol) for k in todo}
         like = [
-            s
+            (job, s)
             for job, s in zip(jobs, series, strict=True)
             if s is not None and (job.how.solver, job.how.tol) in ways
         ]
-        kept_ways = {
-            (job.how.solver, job.how.tol)
-            for job, s in zip(jobs, series, strict=True)
-            if s is not None
-        }
         measured = (
-            (sum(s.compute_s for s in like), estimate.work([(s.n_grains, s.steps) for s in like]))
-            if ways <= kept_ways
+            (
+                sum(s.compute_s for _, s in like),
+                estimate.work([(s.n_grains, s.steps) for _, s in like]),
+            )
+            if {(job.how.solver, job.how.tol) for job, _ in like} == ways
             else None
         )
         estimate.kept(

@@ -213,15 +213,13 @@ def _rows(runs: list[Any], times: list[float], period: float, seed: int) -> list
         front_cocd = float(np.interp(t, cocd_run.times, cocd_run.front))
         front_nscd = float(np.interp(t, nscd_run.times, nscd_run.front))
         d = cocd_run.d_mean
+        difference, difference_4d = base.profile_errors(nscd_run.profiles[k], cocd_run.profiles[k])
         row: dict[str, Any] = {
             "seed": seed,
             "t": t,
             "t_over_T": t / period,
-            "profile_difference": base.profile_error(nscd_run.profiles[k], cocd_run.profiles[k]),
-            "profile_difference_4d": base.profile_error(
-                base.coarsen(nscd_run.profiles[k], base.COARSE),
-                base.coarsen(cocd_run.profiles[k], base.COARSE),
-            ),
+            "profile_difference": difference,
+            "profile_difference_4d": difference_4d,
             "front_cocd_m": front_cocd,
             "front_nscd_m": front_nscd,
             "front0_m": float(cocd_run.front[0]),
@@ -233,25 +231,20 @@ def _rows(runs: list[Any], times: list[float], period: float, seed: int) -> list
         for s, name in ((cocd_run, "cocd"), (nscd_run, "nscd")):
             row[f"compute_s_{name}"] = s.compute_s
             row[f"penetration_max_{name}"] = s.penetration_max
-            # Steps answered by a fallback (the first backend failed them).
-            row[f"fallback_steps_{name}"] = int((s.stats.failures.fillna("") != "").sum())
+            row[f"fallback_steps_{name}"] = s.fallback_steps
             row[f"max_residual_{name}"] = float(
                 (s.stats.ccp_residual if name == "cocd" else s.stats.coulomb_residual).max()
             )
         if twin:
             (other,) = twin
-            row["nscd_twin_difference"] = base.profile_error(
+            (row["nscd_twin_difference"], row["nscd_twin_difference_4d"]) = base.profile_errors(
                 other.profiles[k], nscd_run.profiles[k]
-            )
-            row["nscd_twin_difference_4d"] = base.profile_error(
-                base.coarsen(other.profiles[k], base.COARSE),
-                base.coarsen(nscd_run.profiles[k], base.COARSE),
             )
             row["nscd_twin_front_gap_d"] = (
                 float(np.interp(t, other.times, other.front)) - front_nscd
             ) / d
             row["compute_s_nscd_twin"] = other.compute_s
-            row["fallback_steps_nscd_twin"] = int((other.stats.failures.fillna("") != "").sum())
+            row["fallback_steps_nscd_twin"] = other.fallback_steps
         rows.append(row)
     return rows
 

@@ -193,16 +193,14 @@ def _rows(
             twin_error = math.nan
             if twin is not None and j == 0:
                 twin_error = base.profile_error(s.profiles[k], twin.profiles[k])
+            error, error_4d = base.profile_errors(s.profiles[k], ref.profiles[k])
             rows.append(
                 {
                     "seed": seed,
                     "dt": dt,
                     "t": t,
-                    "profile_error": base.profile_error(s.profiles[k], ref.profiles[k]),
-                    "profile_error_4d": base.profile_error(
-                        base.coarsen(s.profiles[k], base.COARSE),
-                        base.coarsen(ref.profiles[k], base.COARSE),
-                    ),
+                    "profile_error": error,
+                    "profile_error_4d": error_4d,
                     "front_m": float(np.interp(t, s.times, s.front)),
                     "front_ref_m": float(np.interp(t, ref.times, ref.front)),
                     "twin_error": twin_error,
