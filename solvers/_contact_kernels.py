@@ -23,6 +23,7 @@ __all__ = [
     "natural_map_sq",
     "project_cones",
     "project_contact",
+    "restart_velocity",
     "row_velocity",
 ]
 
@@ -111,24 +112,49 @@ def move_contact(a, new, indptr, indices, data, inv_mass, p, v):
 
 
 @njit(cache=True)
-def natural_map_sq(indptr, indices, data, v, offset, rho, mu, p, shift):
+def natural_map_sq(indptr, indices, data, v, offset, rho, mu, p, shift, desaxce=False):
     """``sum_a |p_a - P_K(p_a - rho_a w_a)|^2`` with ``w = H v + offset - shift p``
     (``v = U + M^-1 H'p``; ``shift`` is the problem's ``delassus_shift``).
 
-    The numerator of :func:`cocd.residuals.ccp_residual`, squared, in one pass.
+    The numerator of :func:`cocd.residuals.ccp_residual`, squared, in one pass; with
+    ``desaxce=True``, De Saxcé's ``w_N + mu |w_T|`` in place of ``w_N``: that of
+    :func:`cocd.residuals.coulomb_residual`.
     """
     nc, m = p.shape
     x = np.empty(m)
     total = 0.0
     for a in range(nc):
         for k in range(m):
-            w = row_velocity(a * m + k, indptr, indices, data, v, offset)
-            x[k] = p[a, k] - rho[a] * (w - shift * p[a, k])
+            x[k] = row_velocity(a * m + k, indptr, indices, data, v, offset) - shift * p[a, k]
+        if desaxce and m > 1:
+            wt2 = 0.0
+            for k in range(1, m):
+                wt2 += x[k] * x[k]
+            x[0] += mu[a] * np.sqrt(wt2)
+        for k in range(m):
+            x[k] = p[a, k] - rho[a] * x[k]
         project_contact(x, mu[a])
         for k in range(m):
             d = p[a, k] - x[k]
             total += d * d
     return total
+
+
+@njit(cache=True)
+def restart_velocity(indptr, indices, data, inv_mass, U, p, v):
+    """``v = U + M^-1 H'p`` in place, from the CSR arrays of ``H`` (``p`` of shape
+    ``(nc, m)``): the velocity the sweeps keep up to date, recomputed from scratch so
+    that rounding does not accumulate in it."""
+    m = p.shape[1]
+    for j in range(v.shape[0]):
+        v[j] = 0.0
+    for row in range(indptr.shape[0] - 1):
+        pk = p[row // m, row % m]
+        if pk != 0.0:
+            for idx in range(indptr[row], indptr[row + 1]):
+                v[indices[idx]] += data[idx] * pk
+    for j in range(v.shape[0]):
+        v[j] = U[j] + v[j] * inv_mass[j]
 
 
 @njit(cache=True)

@@ -80,11 +80,13 @@ class Contacts:
             *residual_scales(problem),
         )
 
-    def natural_map(self, p: FloatArray, v: FloatArray) -> float:
-        """The framework's ``ccp_residual`` of ``p`` with ``v = U + M^-1 H'p``, in one pass."""
+    def natural_map(self, p: FloatArray, v: FloatArray, coulomb: bool = False) -> float:
+        """The framework's ``ccp_residual`` of ``p`` with ``v = U + M^-1 H'p``, in one pass
+        (``coulomb=True``: its ``coulomb_residual``)."""
         total = natural_map_sq(
-            self.indptr, self.indices, self.data, v, self.offset, self.rho, self.mu, p, self.shift
-        )
+            self.indptr, self.indices, self.data, v, self.offset, self.rho, self.mu, p,
+            self.shift, coulomb,
+        )  # fmt: skip
         return ratio(math.sqrt(total), self.rb_norm)
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from solvers._contact_kernels import contact_rest, move_contact
-from solvers._nscd_local_kernels import local_solve, local_solve_fb
+from solvers._nscd_local_kernels import SEPARATED, local_2d, local_solve, local_solve_fb
 
 __all__ = ["LOCAL_EXACT", "LOCAL_FB", "nscd_sweeps"]
 
@@ -84,12 +84,24 @@ def nscd_sweeps(
         for step in range(nc):
             a = nc - 1 - step if backward else step
             contact_rest(a, indptr, indices, data, v, offset, W, p, shift, r)
-            if local == LOCAL_FB:
+            branch = -1  # the 2D exact law from the block's scalars, read in place
+            if local == LOCAL_EXACT and m == 2:
+                if r[0] >= 0.0 or W[a, 0, 0] <= 0.0:
+                    out[0], out[1], branch = 0.0, 0.0, SEPARATED
+                elif mu[a] > 0.0:
+                    out[0], out[1], branch = local_2d(
+                        W[a, 0, 0], W[a, 0, 1], W[a, 1, 0], W[a, 1, 1],
+                        Winv[a, 0, 0], Winv[a, 0, 1], Winv[a, 1, 0], Winv[a, 1, 1],
+                        r[0], r[1], mu[a],
+                    )  # fmt: skip
+            if branch >= 0:
+                pass
+            elif local == LOCAL_FB:
                 if local_solve_fb(W[a], Winv[a], r, mu[a], p[a], out):
                     counts[0] += 1
                 else:
                     counts[1] += 1
-            else:
+            else:  # 3D, frictionless, or a 2D contact at a branch boundary
                 local_solve(W[a], Winv[a], r, mu[a], out)
             if relax != 1.0:
                 for k in range(m):

@@ -45,7 +45,7 @@ from numba import njit
 
 from solvers._contact_kernels import project_contact
 
-__all__ = ["SEPARATED", "SLIDE", "STICK", "local_solve", "local_solve_fb"]
+__all__ = ["SEPARATED", "SLIDE", "STICK", "local_2d", "local_solve", "local_solve_fb"]
 
 #: Branch codes returned by :func:`local_solve`.
 SEPARATED = 0
@@ -84,34 +84,49 @@ def local_solve(W, Winv, r, mu, out):
 
 @njit(cache=True)
 def _local_2d(W, Winv, r, mu, out):
-    a, c, d = W[0, 0], W[0, 1], W[1, 1]
-    rn, rt = r[0], r[1]
-    pn = -(Winv[0, 0] * rn + Winv[0, 1] * rt)
-    pt = -(Winv[1, 0] * rn + Winv[1, 1] * rt)
-    if pn >= 0.0 and abs(pt) <= mu * pn:
+    pn, pt, branch = local_2d(
+        W[0, 0], W[0, 1], W[1, 0], W[1, 1],
+        Winv[0, 0], Winv[0, 1], Winv[1, 0], Winv[1, 1], r[0], r[1], mu,
+    )  # fmt: skip
+    if branch >= 0:
         out[0] = pn
         out[1] = pt
-        return STICK
-    # Slip s = sign(w_T), p_T = -s mu p_N. The stick trial's p_T points against the
-    # slip: try that branch first (both may hold for large mu with coupling).
-    first = -1.0 if pt > 0.0 else 1.0
-    for attempt in range(2):
-        s = first if attempt == 0 else -first
-        den = a - s * mu * c
-        if den <= 0.0:
-            continue
-        qn = -rn / den
-        qt = -s * mu * qn
-        wt = W[1, 0] * qn + d * qt + rt
-        if s * wt >= 0.0:
-            out[0] = qn
-            out[1] = qt
-            return SLIDE
+        return branch
     # Rounding at a branch boundary: the candidate with the smallest local residual.
     _best_candidate(W, r, mu, pn, pt, 0.0, out)
     if out[0] <= 0.0:
         return SEPARATED
     return STICK if abs(out[1]) < mu * out[0] else SLIDE
+
+
+@njit(cache=True, inline="always")
+def local_2d(w00, w01, w10, w11, i00, i01, i10, i11, rn, rt, mu):
+    """The 2D law of one contact from the scalars of its block ``W``, of ``W^-1`` (``iNM``)
+    and of its rest ``r``, with ``r_N < 0``, ``W_NN > 0`` and ``mu > 0``: ``(p_N, p_T,
+    branch)``, every branch tried as in the module's docstring. Branch -1: none is valid
+    to rounding, and ``(p_N, p_T)`` is the stick trial.
+
+    Scalars rather than arrays so that a sweep (:func:`solvers._nscd_kernels.nscd_sweeps`)
+    reads them in place, without a view of the block per contact.
+    """
+    pn = -(i00 * rn + i01 * rt)
+    pt = -(i10 * rn + i11 * rt)
+    if pn >= 0.0 and abs(pt) <= mu * pn:
+        return pn, pt, STICK
+    # Slip s = sign(w_T), p_T = -s mu p_N. The stick trial's p_T points against the
+    # slip: try that branch first (both may hold for large mu with coupling).
+    first = -1.0 if pt > 0.0 else 1.0
+    for attempt in range(2):
+        s = first if attempt == 0 else -first
+        den = w00 - s * mu * w01
+        if den <= 0.0:
+            continue
+        qn = -rn / den
+        qt = -s * mu * qn
+        wt = w10 * qn + w11 * qt + rt
+        if s * wt >= 0.0:
+            return qn, qt, SLIDE
+    return pn, pt, -1
 
 
 @njit(cache=True)

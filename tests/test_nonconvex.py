@@ -383,3 +383,62 @@ def test_bad_names_and_options(problems):
     with pytest.raises(ProblemError, match="colour"):
         solvers.solve(problem, "fp:clarabel", colour="red")
     assert solvers.get("fp:clarabel-dual").convex is False
+
+
+def test_nscd_sweep_reads_the_2d_law_in_place_as_local_solve_gives_it():
+    """The sweep solves a 2D contact from its block's scalars, read in place; a sweep
+    that calls ``local_solve`` on every contact's block gives the same impulses, on a
+    thrown heap with separating, sticking and sliding contacts and a frictionless one."""
+    from solvers._contact_kernels import contact_rest, move_contact
+    from solvers._iterative import Contacts, contact_blocks
+    from solvers._nscd_kernels import LOCAL_EXACT, nscd_sweeps
+
+    scene = column_2d(60, mu=0.4)
+    rng = np.random.default_rng(3)
+    thrown = rng.random(scene.n_grains) < 0.5
+    scene.velocities[thrown] = rng.normal(0.0, 0.3, (thrown.sum(), 2))
+    scene.angular_velocities[thrown] = rng.normal(0.0, 30.0, thrown.sum())
+    problem = assemble(scene, detect_contacts(scene), DT)
+    c = Contacts.of(problem, sort=True)
+    W, Winv = contact_blocks(problem, c.indptr, c.indices, c.data, c.inv_mass)
+    mu = c.mu.copy()
+    mu[0] = 0.0
+    p0 = np.zeros((problem.nc, 2))
+    p, v = p0.copy(), problem.velocity(p0)
+    nscd_sweeps(c.indptr, c.indices, c.data, c.inv_mass, c.offset, W, Winv, mu, p, v,
+                3, True, 1.0, c.shift, LOCAL_EXACT, np.zeros(2, dtype=np.int64))  # fmt: skip
+    q, u = p0.copy(), problem.velocity(p0)
+    r, out, seen = np.empty(2), np.empty(2), set()
+    for sweep in range(3):
+        order = range(problem.nc) if sweep % 2 == 0 else reversed(range(problem.nc))
+        for a in order:
+            contact_rest(a, c.indptr, c.indices, c.data, u, c.offset, W, q, c.shift, r)
+            seen.add((kernels.local_solve(W[a], Winv[a], r, mu[a], out), mu[a] > 0))
+            move_contact(a, out, c.indptr, c.indices, c.data, c.inv_mass, q, u)
+    assert {(kernels.SEPARATED, True), (kernels.STICK, True), (kernels.SLIDE, True)} <= seen
+    assert any(not rough for _, rough in seen)
+    assert np.allclose(p, q, rtol=1e-12, atol=1e-15 * np.abs(q).max())
+    assert np.abs(q).max() > 0
+
+
+@pytest.mark.parametrize("problem_name", ["column-2d", "heap-3d"])
+def test_nscd_tests_the_framework_coulomb_residual(problem_name, problems):
+    """NSCD stops on a one-pass kernel of ``coulomb_residual``: the two agree to rounding
+    at an answer and away from one, and the test history ends where the answer is."""
+    from solvers._contact_kernels import restart_velocity
+    from solvers._iterative import Contacts
+
+    problem = problems(problem_name)
+    c = Contacts.of(problem, sort=True)
+    answer = solvers.solve(problem, "nscd", tol=1e-6)
+    for p in (answer.p, 0.5 * answer.p, np.zeros_like(answer.p)):
+        p = np.ascontiguousarray(p.reshape(problem.nc, -1))
+        v = np.empty(problem.U.shape)
+        restart_velocity(c.indptr, c.indices, c.data, c.inv_mass, problem.U, p, v)
+        assert np.allclose(v, problem.velocity(p), rtol=1e-12, atol=1e-14)
+        framework = coulomb_residual(problem, p)
+        assert c.natural_map(p, v, coulomb=True) == pytest.approx(framework, rel=1e-10)
+        assert framework > 0 or p is answer.p
+    assert answer.extras["history"][-1][1] == pytest.approx(
+        coulomb_residual(problem, answer.p), rel=1e-10
+    )
