@@ -292,6 +292,7 @@ def test_nscd_twin_measures_the_reference_against_its_own_tolerance(tmp_path):
 
 
 def test_an_erodible_layer_lengthens_the_runout(tmp_path):
+    lines: list[str] = []
     table = erodible.STUDY(
         n=60,
         slopes=[22.0],
@@ -300,8 +301,10 @@ def test_an_erodible_layer_lengthens_the_runout(tmp_path):
         bed_length=1.2,
         solver="clarabel",
         out=tmp_path,
-        progress=_quiet([]),
+        progress=_quiet(lines),
     )
+    # The estimate sizes each run by its free grains, the layer's with the column's.
+    assert f"the largest of {60 + table.n_layer.max()} grains" in lines[0]
     runout = table.set_index("layer_d").runout_m
     assert runout[0.0] > 0.1  # the column spreads down the slope
     # The seed's Fig. 9 and the experiments: the layer lengthens the runout.

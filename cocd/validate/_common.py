@@ -31,6 +31,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -137,6 +138,15 @@ class CollapseJob:
     @property
     def steps(self) -> float:
         return self.until / self.dt
+
+    @cached_property
+    def free_grains(self) -> int:
+        """Free grains of the run's scene, a bed layer's with the column's: the size of
+        its step problems, which sets what a step costs."""
+        from cocd.builders import column_collapse
+
+        params = dict(self.params)
+        return int(column_collapse(params.pop("dim"), **params).n_free)
 
 
 def collapse_job(
@@ -473,7 +483,7 @@ def collapse_runs(
         else:
             todo.append(k)
     if todo and len(todo) < len(jobs):
-        steps = [job.steps for job in jobs]
+        units = [estimate.work([(job.free_grains, job.steps)]) for job in jobs]
         # The kept runs' rate, if they were made as the rest will be (same backend and
         # tolerance): an ipm run's rate says little of an nscd run's.
         ways = {(jobs[k].how.solver, jobs[k].how.tol) for k in todo}
@@ -485,13 +495,13 @@ def collapse_runs(
         measured = (
             (
                 sum(s.compute_s for _, s in like),
-                estimate.work([(s.n_grains, s.steps) for _, s in like]),
+                estimate.work([(job.free_grains, s.steps) for job, s in like]),
             )
             if {(job.how.solver, job.how.tol) for job, _ in like} == ways
             else None
         )
         estimate.kept(
-            sum(steps[k] for k in todo) / sum(steps),
+            sum(units[k] for k in todo) / sum(units),
             f"{len(jobs) - len(todo)} of {len(jobs)} runs kept",
             progress,
             measured=measured,
@@ -504,10 +514,10 @@ def collapse_runs(
         made = _collapse_apart([jobs[k] for k in todo], min(workers, len(todo)), progress)
         for k, s in zip(todo, made, strict=True):
             series[k] = s
-    done = [s for s in series if s is not None]
-    for s in done:
-        estimate.made(s.n_grains, s.steps_made)  # none for a run read back
-    return done
+    done = [(job, s) for job, s in zip(jobs, series, strict=True) if s is not None]
+    for job, s in done:
+        estimate.made(job.free_grains, s.steps_made)  # none for a run read back
+    return [s for _, s in done]
 
 
 def _kept(job: CollapseJob) -> CollapseSeries | None:

@@ -69,13 +69,6 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     frame_dt = base.frame_interval([0.01], [dt])
     window = base.RUNOUT_WINDOW * until
     seeds = base.positive_int("seeds", cfg.seeds)
-    estimate.announce(
-        "erodible",
-        [(n, round(until / dt) * len(slopes) * len(layers) * seeds)],
-        out=out,
-        progress=progress,
-        workers=cfg.workers,
-    )
     cases = [(seed, slope, layer) for seed in range(seeds) for slope in slopes for layer in layers]
     jobs = [
         base.collapse_job(
@@ -94,6 +87,15 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         )
         for seed, slope, layer in cases
     ]
+    # Each run's size is its column's grains and its layer's: a 5-diameter layer on the
+    # 3 m bed nearly triples a 2000-disc column.
+    estimate.announce(
+        "erodible",
+        [(job.free_grains, round(until / dt)) for job in jobs],
+        out=out,
+        progress=progress,
+        workers=cfg.workers,
+    )
     fronts = dict(zip(cases, base.collapse_runs(jobs, cfg.workers, progress), strict=True))
     rows = [_row(s, *key, window, bed_length) for key, s in fronts.items()]
     table = pd.DataFrame(rows)
