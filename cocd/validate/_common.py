@@ -158,8 +158,8 @@ def collapse_job(
     how: RunSettings,
     *,
     dt: float,
-    until: float,
     frame_dt: float,
+    until: float | None = None,
     profile_times: Sequence[float] = (),
     what: str = "",
     max_iter: int | None = None,
@@ -170,8 +170,13 @@ def collapse_job(
     """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
 
     ``what`` describes the run in the progress line (default: backend and tolerance);
-    the rest are :class:`CollapseJob`'s fields.
+    ``until`` defaults to the last of ``profile_times``; the rest are
+    :class:`CollapseJob`'s fields.
     """
+    if until is None:
+        if not profile_times:
+            raise CocdError(f"{case}: a run needs an end time or profile times")
+        until = max(profile_times)
     label = seed_label(label, seed)
     what = what or f"{how.solver}, tol {how.tol:g}"
     return CollapseJob(

@@ -105,24 +105,12 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if twin_tol:  # nscd again, at the twin's tolerance
         twin_how = dataclasses.replace(nscd_how, tol=twin_tol)
         runs.append((twin_how, nscd_options, f"{runs[1][2]}_tol{twin_tol:g}"))
-    jobs = []
-    for seed in range(seeds):
-        for how, extra, label in runs:
-            jobs.append(
-                base.collapse_job(
-                    out,
-                    "nscd",
-                    label,
-                    seed,
-                    params,
-                    how,
-                    dt=dt,
-                    until=max(times),
-                    frame_dt=frame_dt,
-                    profile_times=times,
-                    **extra,
-                )
-            )
+    steps: dict[str, Any] = {"dt": dt, "frame_dt": frame_dt, "profile_times": times}
+    jobs = [
+        base.collapse_job(out, "nscd", label, seed, params, how, **steps, **extra)
+        for seed in range(seeds)
+        for how, extra, label in runs
+    ]
     made = base.collapse_runs(jobs, cfg.workers, progress)
     every = [made[per_seed * seed : per_seed * (seed + 1)] for seed in range(seeds)]
     first = every[0]

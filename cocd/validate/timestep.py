@@ -78,16 +78,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
 
     def job(seed: int, dt: float, label: str, how: Settings) -> base.CollapseJob:
         return base.collapse_job(
-            out,
-            "timestep",
-            label,
-            seed,
-            params,
-            how,
-            dt=dt,
-            until=max(times),
-            frame_dt=frame_dt,
-            profile_times=times,
+            out, "timestep", label, seed, params, how, dt=dt, frame_dt=frame_dt, profile_times=times
         )
 
     jobs = []
