@@ -146,7 +146,7 @@ def _maximise(W, r, mu, theta, best):
     return theta, _phi(W, r, mu, theta)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def local_ccp(W, Winv, r, mu, previous, out):
     """Exact answer ``out`` (length ``m``) of one contact's convex local problem.
 
