@@ -81,7 +81,7 @@ def solve_chain(
     with ``where``, when every backend fails.
     """
     failures: list[str] = []
-    for name in names:
+    for position, name in enumerate(names):
         info = solvers.get(name)
         try:
             solution = solvers.solve(
@@ -90,7 +90,7 @@ def solve_chain(
                 tol=accept.tol,
                 warm_start=p0 if info.warm_start else None,
                 **limits,
-                **(options if name == names[0] else {}),
+                **(options if position == 0 else {}),  # a fallback of the same name too
             )
         except ProblemError:
             raise  # the problem or the options are wrong, not the backend

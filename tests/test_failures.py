@@ -25,7 +25,7 @@ def doubles(monkeypatch):
     """Test backends, registered for one test: each fails in its own way from its 3rd call."""
     monkeypatch.setattr(registry, "_registry", dict(registry.registered()))
     CALLS["n"] = 0
-    for name in ("raises", "nan", "lazy", "kicks", "gives_up"):
+    for name in ("raises", "nan", "lazy", "kicks", "gives_up", "picky"):
         solvers.register(SolverInfo(name=name, entry=f"{__name__}:_{name}", warm_start=True))
     yield
 
@@ -79,6 +79,13 @@ def _kicks(problem, **kwargs):
     return answer
 
 
+def _picky(problem, **kwargs):
+    """Gives up when asked to ``stall``, solves otherwise."""
+    if kwargs.get("stall"):
+        return _answer(problem, np.zeros((problem.nc, problem.contact_dim)), Status.MAX_ITER)
+    return solvers.solve(problem, "clarabel", tol=kwargs["tol"])
+
+
 def _gives_up(problem, **kwargs):
     answer = _good_until_third_call(problem, **kwargs)
     if answer is None:
@@ -105,6 +112,20 @@ def test_failed_step_falls_back_and_the_statistics_say_so(doubles, double, reaso
     # The fallback's answer is the physical one: the stack stays at rest.
     assert np.allclose(stepper.scene.velocities, 0.0, atol=1e-9)
     assert (stats.ccp_residual <= 1e-9).all()
+
+
+def test_a_fallback_of_the_same_backend_runs_without_the_first_ones_options(doubles):
+    """``solver_options`` go to the first backend of the chain only, even when a
+    fallback is the same backend (nscd's symmetric sweeps, then its forward ones)."""
+    stepper = Stepper(
+        stack(3, dim=2), 1e-3, solver="picky", solver_options={"stall": True},
+        fallback=["picky"], tol=1e-9,
+    )  # fmt: skip
+    stepper.run(2)
+    stats = stepper.stats()
+    assert list(stats.solver) == ["picky", "picky"]
+    assert all(f.startswith("picky: returned status max_iter") for f in stats.failures)
+    assert np.allclose(stepper.scene.velocities, 0.0, atol=1e-9)
 
 
 def test_without_fallback_the_error_names_the_step_and_the_backend(doubles):
