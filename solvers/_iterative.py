@@ -20,7 +20,7 @@ import numpy as np
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
-from solvers._contact_kernels import delassus_blocks, natural_map_sq
+from solvers._contact_kernels import delassus_blocks, natural_map_sq, restart_velocity
 from solvers.base import FloatArray, IntArray, Request, Solution, Status
 
 if TYPE_CHECKING:
@@ -174,8 +174,12 @@ def gauss_seidel(
     best_p, best_r = p.copy(), math.inf
     done = 0
     status, native = Status.MAX_ITER, "max_iter"
+    c = contacts
+    U = np.ascontiguousarray(problem.U, dtype=np.float64)
+    v = np.empty_like(U)
     while True:
-        v = problem.velocity(p)  # resynchronise: the sweeps update v incrementally
+        # Resynchronise: the sweeps update v incrementally, and rounding accumulates.
+        restart_velocity(c.indptr, c.indices, c.data, c.inv_mass, U, p, v)
         r = contacts.natural_map(p, v)
         checks.add(done, r)
         bad_residual = finite_residual and not (math.isfinite(r) or contacts.rb_norm == 0.0)

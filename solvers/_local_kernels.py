@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 
 from solvers._apgd_kernels import _project3
-from solvers._nscd_local_kernels import local_solve, local_solve_fb
+from solvers._nscd_local_kernels import fb_workspace, local_solve, local_solve_fb
 
 __all__ = [
     "LOCAL_EXACT",
@@ -226,6 +226,7 @@ def local_sweeps(
     kept = False
     rest = np.zeros(m)
     out = np.empty(m)
+    work = fb_workspace(m)
     best_err = state[0]
     done = 0
     converged = False
@@ -268,7 +269,7 @@ def local_sweeps(
                 if m > 2:
                     rest[2] = rest2
                 if local == LOCAL_FB:
-                    if local_solve_fb(Wd[a], Wdinv[a], rest, mu[a], r[a], out):
+                    if local_solve_fb(Wd[a], Wdinv[a], rest, mu[a], r[a], out, work):
                         counts[0] += 1
                     else:
                         counts[1] += 1

@@ -14,7 +14,13 @@ import numpy as np
 from numba import njit
 
 from solvers._contact_kernels import contact_rest, move_contact
-from solvers._nscd_local_kernels import SEPARATED, local_2d, local_solve, local_solve_fb
+from solvers._nscd_local_kernels import (
+    SEPARATED,
+    fb_workspace,
+    local_2d,
+    local_solve,
+    local_solve_fb,
+)
 
 __all__ = ["LOCAL_EXACT", "LOCAL_FB", "nscd_sweeps"]
 
@@ -77,6 +83,7 @@ def nscd_sweeps(
     nc, m = p.shape
     r = np.empty(m)
     out = np.empty(m)
+    work = fb_workspace(m)
     biggest = 0.0
     for sweep in range(n_sweeps):
         backward = symmetric and (sweep % 2 == 1)
@@ -84,7 +91,10 @@ def nscd_sweeps(
         for step in range(nc):
             a = nc - 1 - step if backward else step
             contact_rest(a, indptr, indices, data, v, offset, W, p, shift, r)
-            branch = -1  # the 2D exact law from the block's scalars, read in place
+            # The 2D law from the block's scalars, read in place: a view of the block
+            # per contact (W[a], as local_solve takes it) doubles the sweep's cost,
+            # inlined or not. Branch -1: not taken, or at a branch boundary.
+            branch = -1
             if local == LOCAL_EXACT and m == 2:
                 if r[0] >= 0.0 or W[a, 0, 0] <= 0.0:
                     out[0], out[1], branch = 0.0, 0.0, SEPARATED
@@ -94,15 +104,14 @@ def nscd_sweeps(
                         Winv[a, 0, 0], Winv[a, 0, 1], Winv[a, 1, 0], Winv[a, 1, 1],
                         r[0], r[1], mu[a],
                     )  # fmt: skip
-            if branch >= 0:
-                pass
-            elif local == LOCAL_FB:
-                if local_solve_fb(W[a], Winv[a], r, mu[a], p[a], out):
-                    counts[0] += 1
-                else:
-                    counts[1] += 1
-            else:  # 3D, frictionless, or a 2D contact at a branch boundary
-                local_solve(W[a], Winv[a], r, mu[a], out)
+            if branch < 0:
+                if local == LOCAL_FB:
+                    if local_solve_fb(W[a], Winv[a], r, mu[a], p[a], out, work):
+                        counts[0] += 1
+                    else:
+                        counts[1] += 1
+                else:  # 3D, frictionless, or a 2D contact at a branch boundary
+                    local_solve(W[a], Winv[a], r, mu[a], out)
             if relax != 1.0:
                 for k in range(m):
                     out[k] = relax * out[k] + (1.0 - relax) * p[a, k]

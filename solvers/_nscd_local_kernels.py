@@ -45,7 +45,15 @@ from numba import njit
 
 from solvers._contact_kernels import project_contact
 
-__all__ = ["SEPARATED", "SLIDE", "STICK", "local_2d", "local_solve", "local_solve_fb"]
+__all__ = [
+    "SEPARATED",
+    "SLIDE",
+    "STICK",
+    "fb_workspace",
+    "local_2d",
+    "local_solve",
+    "local_solve_fb",
+]
 
 #: Branch codes returned by :func:`local_solve`.
 SEPARATED = 0
@@ -327,35 +335,62 @@ def _best_candidate(W, r, mu, pn, p1, p2, out):
 
 @njit(cache=True)
 def _local_residual(W, r, mu, p):
-    """``|p - P_K(p - rho ŵ)|`` for one contact, ``rho = m / trace(W)``."""
+    """``|p - P_K(p - rho ŵ)|`` for one contact, ``rho = m / trace(W)``.
+
+    Written out in scalars for ``m`` in {1, 2, 3} (it runs at every Newton iteration of
+    :func:`local_solve_fb`, so without temporary arrays).
+    """
     m = r.shape[0]
-    tr = 0.0
-    for k in range(m):
-        tr += W[k, k]
+    return _local_residual_at(W, r, mu, p[0], p[1] if m > 1 else 0.0, p[2] if m > 2 else 0.0)
+
+
+@njit(cache=True, inline="always")
+def _local_residual_at(W, r, mu, p0, p1, p2):
+    """:func:`_local_residual` at the impulse ``(p0, p1, p2)`` (unused components 0)."""
+    m = r.shape[0]
+    w0 = r[0] + W[0, 0] * p0
+    w1 = 0.0
+    w2 = 0.0
+    tr = W[0, 0]
+    if m > 1:
+        w0 += W[0, 1] * p1
+        w1 = r[1] + W[1, 0] * p0 + W[1, 1] * p1
+        tr += W[1, 1]
+    if m > 2:
+        w0 += W[0, 2] * p2
+        w1 += W[1, 2] * p2
+        w2 = r[2] + W[2, 0] * p0 + W[2, 1] * p1 + W[2, 2] * p2
+        tr += W[2, 2]
     rho = m / tr
-    w = np.empty(m)
-    for k in range(m):
-        s = r[k]
-        for ll in range(m):
-            s += W[k, ll] * p[ll]
-        w[k] = s
-    nt = 0.0
-    for k in range(1, m):
-        nt += w[k] * w[k]
-    w[0] += mu * np.sqrt(nt)
-    x = np.empty(m)
-    for k in range(m):
-        x[k] = p[k] - rho * w[k]
-    project_contact(x, mu)
-    total = 0.0
-    for k in range(m):
-        total += (p[k] - x[k]) ** 2
-    return np.sqrt(total)
+    w0 += mu * np.sqrt(w1 * w1 + w2 * w2)
+    x0 = p0 - rho * w0
+    x1 = p1 - rho * w1
+    x2 = p2 - rho * w2
+    # x <- P_K(x), as project_contact does.
+    if m == 1:
+        x0 = max(x0, 0.0)
+    else:
+        nt = np.sqrt(x1 * x1 + x2 * x2)
+        if not (nt <= mu * x0 and x0 >= 0.0):
+            if mu * nt <= -x0:
+                x0, x1, x2 = 0.0, 0.0, 0.0
+            else:
+                x0 = (x0 + mu * nt) / (1.0 + mu * mu)
+                f = mu * x0 / nt
+                x1 *= f
+                x2 *= f
+    return np.sqrt((p0 - x0) ** 2 + (p1 - x1) ** 2 + (p2 - x2) ** 2)
 
 
 # -- the hybrid local solver: Fischer-Burmeister Newton, exact fallback ---------------------
 @njit(cache=True)
-def local_solve_fb(W, Winv, r, mu, start, out):
+def fb_workspace(m):
+    """Scratch for :func:`local_solve_fb` on contacts of ``m`` components."""
+    return np.empty((6 + m, m))
+
+
+@njit(cache=True)
+def local_solve_fb(W, Winv, r, mu, start, out, work=None):
     """Newton on the modified Fischer-Burmeister function of one contact, from ``start``.
 
     With ``X = (mu p_N, p_T)`` and ``Y = (ŵ_N / mu, ŵ_T)`` (``ŵ`` De Saxcé's modified
@@ -369,11 +404,28 @@ def local_solve_fb(W, Winv, r, mu, start, out):
     solver (:func:`local_solve`) answers.
     This is the hybrid strategy of Gauss-Seidel codes: a fast, warm-started Newton
     with an exact solve as its safety net. Returns True when Newton answered.
+
+    ``work``: scratch of shape ``(6 + m, m)`` or larger (:func:`fb_workspace`), so that
+    a sweep allocates it once rather than at every contact; None allocates it here.
     """
     m = r.shape[0]
     if m == 1 or mu == 0.0 or W[0, 0] <= 0.0:
         local_solve(W, Winv, r, mu, out)
         return True
+    if work is None:
+        return _fb_newton(W, Winv, r, mu, start, out, np.empty((6 + m, m)))
+    return _fb_newton(W, Winv, r, mu, start, out, work)
+
+
+# Rows of the workspace of _fb_newton: rows _J .. _J + m - 1 hold the Jacobian.
+_P, _PHI, _TRIAL, _PHI_T, _RHS, _DP, _J = 0, 1, 2, 3, 4, 5, 6
+
+
+@njit(cache=True)
+def _fb_newton(W, Winv, r, mu, start, out, work):
+    """:func:`local_solve_fb` for ``m`` in {2, 3}, ``mu > 0`` and ``W_NN > 0``, on the
+    rows of ``work`` (indexed in place: no array is made per call)."""
+    m = r.shape[0]
     # The size of the impulses at stake: rho |r|, rho = m / trace(W) (the step of the
     # local natural map).
     tr = 0.0
@@ -386,40 +438,34 @@ def local_solve_fb(W, Winv, r, mu, start, out):
         for k in range(m):
             out[k] = 0.0
         return True
-    p = np.empty(m)
     for k in range(m):
-        p[k] = start[k]
-    project_contact(p, mu)
-    phi = np.empty(m)
-    trial = np.empty(m)
-    phi_t = np.empty(m)
-    J = np.empty((m, m))
-    rhs = np.empty(m)
-    dp = np.empty(m)
-    _fb_value(W, r, mu, p, phi)
-    merit = _sq(phi)
+        work[_P, k] = start[k]
+    _project_row(work, _P, mu, m)
+    _fb_value(W, r, mu, work, _P, _PHI)
+    merit = _sq(work, _PHI, m)
     for _ in range(_FB_ITER):
-        if _local_residual(W, r, mu, p) <= _FB_ACCEPT * scale:
+        if _residual_row(W, r, mu, work, _P, m) <= _FB_ACCEPT * scale:
             break
         h = np.sqrt(_EPS) * scale
         for ll in range(m):
             for k in range(m):
-                trial[k] = p[k]
-            trial[ll] += h
-            _fb_value(W, r, mu, trial, phi_t)
+                work[_TRIAL, k] = work[_P, k]
+            work[_TRIAL, ll] += h
+            _fb_value(W, r, mu, work, _TRIAL, _PHI_T)
             for k in range(m):
-                J[k, ll] = (phi_t[k] - phi[k]) / h
+                work[_J + k, ll] = (work[_PHI_T, k] - work[_PHI, k]) / h
         for k in range(m):
-            rhs[k] = -phi[k]
-        if not _solve_small(J, rhs, dp):
+            work[_RHS, k] = -work[_PHI, k]
+        if not _solve_small(work, m):
             break
         t = 1.0
         improved = False
+        merit_t = merit
         for _ls in range(30):
             for k in range(m):
-                trial[k] = p[k] + t * dp[k]
-            _fb_value(W, r, mu, trial, phi_t)
-            merit_t = _sq(phi_t)
+                work[_TRIAL, k] = work[_P, k] + t * work[_DP, k]
+            _fb_value(W, r, mu, work, _TRIAL, _PHI_T)
+            merit_t = _sq(work, _PHI_T, m)
             if merit_t <= (1.0 - 1e-4 * t) * merit:
                 improved = True
                 break
@@ -427,90 +473,120 @@ def local_solve_fb(W, Winv, r, mu, start, out):
         if not improved:
             break
         for k in range(m):
-            p[k] = trial[k]
-            phi[k] = phi_t[k]
+            work[_P, k] = work[_TRIAL, k]
+            work[_PHI, k] = work[_PHI_T, k]
         merit = merit_t
-    project_contact(p, mu)
-    if _local_residual(W, r, mu, p) <= _FB_ACCEPT * scale:
+    _project_row(work, _P, mu, m)
+    if _residual_row(W, r, mu, work, _P, m) <= _FB_ACCEPT * scale:
         for k in range(m):
-            out[k] = p[k]
+            out[k] = work[_P, k]
         return True
     local_solve(W, Winv, r, mu, out)
     return False
 
 
-@njit(cache=True)
-def _sq(x):
+@njit(cache=True, inline="always")
+def _project_row(work, row, mu, m):
+    """Row ``row`` of ``work`` (``m`` components) <- its projection on the Coulomb cone."""
+    xn = work[row, 0]
+    nt2 = 0.0
+    for k in range(1, m):
+        nt2 += work[row, k] * work[row, k]
+    nt = np.sqrt(nt2)
+    if nt <= mu * xn and xn >= 0.0:
+        return
+    if mu * nt <= -xn:
+        for k in range(m):
+            work[row, k] = 0.0
+        return
+    s = (xn + mu * nt) / (1.0 + mu * mu)
+    work[row, 0] = s
+    f = mu * s / nt
+    for k in range(1, m):
+        work[row, k] *= f
+
+
+@njit(cache=True, inline="always")
+def _residual_row(W, r, mu, work, row, m):
+    """:func:`_local_residual` at the impulse in row ``row`` of ``work``."""
+    return _local_residual_at(W, r, mu, work[row, 0], work[row, 1], work[row, 2] if m > 2 else 0.0)
+
+
+@njit(cache=True, inline="always")
+def _sq(work, row, m):
     total = 0.0
-    for k in range(x.shape[0]):
-        total += x[k] * x[k]
+    for k in range(m):
+        total += work[row, k] * work[row, k]
     return total
 
 
-@njit(cache=True)
-def _fb_value(W, r, mu, p, phi):
-    """``phi = X + Y - (X∘X + Y∘Y)^(1/2)`` for impulse ``p`` (see :func:`local_solve_fb`).
+@njit(cache=True, inline="always")
+def _fb_value(W, r, mu, work, src, dst):
+    """Row ``dst`` of ``work`` <- ``phi = X + Y - (X∘X + Y∘Y)^(1/2)`` for the impulse in
+    row ``src`` (see :func:`local_solve_fb`).
 
     Written out for ``m`` in {2, 3}, without temporary arrays (it runs a few times per
     Newton iteration of every contact of every sweep).
     """
     m = r.shape[0]
-    w0 = r[0] + W[0, 0] * p[0] + W[0, 1] * p[1]
-    w1 = r[1] + W[1, 0] * p[0] + W[1, 1] * p[1]
+    q0 = work[src, 0]
+    q1 = work[src, 1]
+    w0 = r[0] + W[0, 0] * q0 + W[0, 1] * q1
+    w1 = r[1] + W[1, 0] * q0 + W[1, 1] * q1
     w2 = 0.0
-    p2 = 0.0
+    q2 = 0.0
     if m == 3:
-        p2 = p[2]
-        w0 += W[0, 2] * p2
-        w1 += W[1, 2] * p2
-        w2 = r[2] + W[2, 0] * p[0] + W[2, 1] * p[1] + W[2, 2] * p2
-    x0 = mu * p[0]
+        q2 = work[src, 2]
+        w0 += W[0, 2] * q2
+        w1 += W[1, 2] * q2
+        w2 = r[2] + W[2, 0] * q0 + W[2, 1] * q1 + W[2, 2] * q2
+    x0 = mu * q0
     y0 = (w0 + mu * np.sqrt(w1 * w1 + w2 * w2)) / mu
     # z = X∘X + Y∘Y = (|X|^2 + |Y|^2, 2 x0 x_T + 2 y0 y_T)
-    z0 = x0 * x0 + y0 * y0 + p[1] * p[1] + w1 * w1 + p2 * p2 + w2 * w2
-    z1 = 2.0 * (x0 * p[1] + y0 * w1)
-    z2 = 2.0 * (x0 * p2 + y0 * w2)
+    z0 = x0 * x0 + y0 * y0 + q1 * q1 + w1 * w1 + q2 * q2 + w2 * w2
+    z1 = 2.0 * (x0 * q1 + y0 * w1)
+    z2 = 2.0 * (x0 * q2 + y0 * w2)
     nz = np.sqrt(z1 * z1 + z2 * z2)
     s1 = np.sqrt(max(z0 - nz, 0.0))
     s2 = np.sqrt(z0 + nz)
     # sqrt(z) = ((s1 + s2) / 2, (s2 - s1) / 2 zb / |zb|)
     half = 0.5 * (s2 - s1) / nz if nz > 0.0 else 0.0
-    phi[0] = x0 + y0 - 0.5 * (s1 + s2)
-    phi[1] = p[1] + w1 - half * z1
+    work[dst, 0] = x0 + y0 - 0.5 * (s1 + s2)
+    work[dst, 1] = q1 + w1 - half * z1
     if m == 3:
-        phi[2] = p2 + w2 - half * z2
+        work[dst, 2] = q2 + w2 - half * z2
 
 
-@njit(cache=True)
-def _solve_small(J, b, x):
-    """``x = J^-1 b`` for ``m <= 3`` by Gaussian elimination with partial pivoting, in
-    place on ``J`` and ``b``; False when ``J`` is singular to rounding."""
-    m = b.shape[0]
+@njit(cache=True, inline="always")
+def _solve_small(work, m):
+    """Row ``_DP`` of ``work`` <- ``J^-1 rhs`` (``J`` in rows ``_J ..``, ``rhs`` in row
+    ``_RHS``), ``m <= 3``, by Gaussian elimination with partial pivoting, in place on
+    ``J`` and ``rhs``; False when ``J`` is singular to rounding."""
     big = 0.0
     for i in range(m):
         for j in range(m):
-            big = max(big, abs(J[i, j]))
+            big = max(big, abs(work[_J + i, j]))
     if big == 0.0:
         return False
     for c in range(m):
         piv = c
         for i in range(c + 1, m):
-            if abs(J[i, c]) > abs(J[piv, c]):
+            if abs(work[_J + i, c]) > abs(work[_J + piv, c]):
                 piv = i
-        if abs(J[piv, c]) <= 1e-14 * big:
+        if abs(work[_J + piv, c]) <= 1e-14 * big:
             return False
         if piv != c:
             for j in range(m):
-                J[c, j], J[piv, j] = J[piv, j], J[c, j]
-            b[c], b[piv] = b[piv], b[c]
+                work[_J + c, j], work[_J + piv, j] = work[_J + piv, j], work[_J + c, j]
+            work[_RHS, c], work[_RHS, piv] = work[_RHS, piv], work[_RHS, c]
         for i in range(c + 1, m):
-            f = J[i, c] / J[c, c]
+            f = work[_J + i, c] / work[_J + c, c]
             for j in range(c, m):
-                J[i, j] -= f * J[c, j]
-            b[i] -= f * b[c]
+                work[_J + i, j] -= f * work[_J + c, j]
+            work[_RHS, i] -= f * work[_RHS, c]
     for i in range(m - 1, -1, -1):
-        s = b[i]
+        s = work[_RHS, i]
         for j in range(i + 1, m):
-            s -= J[i, j] * x[j]
-        x[i] = s / J[i, i]
+            s -= work[_J + i, j] * work[_DP, j]
+        work[_DP, i] = s / work[_J + i, i]
     return True

@@ -145,6 +145,8 @@ def test_fischer_burmeister_local_solver_with_exact_fallback(m):
     blocks from arbitrary starts, and at once from a solution."""
     rng = np.random.default_rng(10 + m)
     out = np.zeros(m)
+    shared = np.zeros(m)
+    work = kernels.fb_workspace(m)  # one scratch for every block, as a sweep keeps it
     newton = 0
     n = 2000
     for _ in range(n):
@@ -153,7 +155,11 @@ def test_fischer_burmeister_local_solver_with_exact_fallback(m):
         r = rng.normal(size=m) * 10.0 ** rng.uniform(-3, 3)
         mu = float(rng.choice([0.1, 0.3, 1.0, 5.0]))
         start = rng.normal(size=m) * np.linalg.norm(Winv @ r) if rng.random() < 0.5 else np.zeros(m)
-        newton += kernels.local_solve_fb(W, Winv, r, mu, start, out)
+        answered = kernels.local_solve_fb(W, Winv, r, mu, start, out)
+        newton += answered
+        # What the previous block left in the scratch changes nothing.
+        assert kernels.local_solve_fb(W, Winv, r, mu, start, shared, work) == answered
+        np.testing.assert_array_equal(shared, out)
         scale = np.linalg.norm(r) * m / np.trace(W)
         assert kernels._local_residual(W, r, mu, out) <= 1e-12 * scale
         exact = np.zeros(m)
