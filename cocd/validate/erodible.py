@@ -105,7 +105,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     # R0: the column's measured initial length (its front at t = 0), not a nominal value.
     table["runout_over_R0"] = table.runout_m / table.front0_m
     ensemble = base.ensemble(
-        table, ["slope_deg", "layer_d"], ["runout_over_R0", "runout_ratio", "front_R0"]
+        table,
+        ["slope_deg", "layer_d"],
+        ["runout_over_R0", "runout_ratio", "front_R0", "end_speed_d_s"],
     )
     ensemble["reached_end"] = (
         table.groupby(["slope_deg", "layer_d"]).reached_end.sum().to_numpy(dtype=int)
@@ -118,7 +120,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         title="Runout on erodible beds (Fig. 9): mean and spread over the packings",
         intro="Per slope and layer, over the packings (`seeds` of them): mean and sample "
         "standard deviation (`_sd`) of the runout in R0, of its ratio to the bare bed's and "
-        "of the final front r_f / R0; `reached_end`: packings whose front came within two "
+        "of the final front r_f / R0 and of the front's speed at the end (`end_speed_d_s`); "
+        "`reached_end`: packings whose front came within two "
         "diameters of the bed's end.",
     )
     files += report.write_table(
@@ -140,7 +143,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "the end; `front_R0`: r_f(t) (averaged as for the runout) / front0_m; "
         "`runout_ratio`: against the same packing and slope with no layer; "
         "`runout_over_R0`: runout_m / front0_m, R0 being the column's initial length as "
-        "measured; `seed`: the packing; `n_layer`: grains in the "
+        "measured; `end_speed_d_s`: the front's speed over that last window, by least "
+        "squares, in diameters per second; `seed`: the packing; `n_layer`: grains in the "
         "layer; `reached_end`: the front came within two diameters of the bed's end "
         "(runout cut short)."
     )
@@ -168,7 +172,11 @@ def _row(
     front0 = float(s.front[0])
     # Averaged over the last RUNOUT_WINDOW of the run: the front of a thin flow wobbles
     # by a few diameters from frame to frame.
-    final = float(np.mean(s.front[s.times >= s.times[-1] - window]))
+    late = s.times >= s.times[-1] - window
+    final = float(np.mean(s.front[late]))
+    # The front's speed over that window, by least squares: a front still advancing at
+    # the end gives a runout at t, not a final one.
+    speed = float(np.polyfit(s.times[late], s.front[late], 1)[0]) if late.sum() > 1 else np.nan
     return {
         "seed": seed,
         "slope_deg": slope,
@@ -179,6 +187,7 @@ def _row(
         "front_m": float(s.front[-1]),
         "front_R0": final / front0,
         "runout_m": final - front0,
+        "end_speed_d_s": speed / s.d_mean,
         # The front within two diameters of the bed's end: runout cut short.
         "reached_end": bool(np.max(s.front) >= bed - 2.0 * s.d_mean),
         "n_layer": int(s.stats.n.iloc[0]) - s.n_grains,
