@@ -23,42 +23,50 @@ __all__ = [
     "natural_map_sq",
     "project_cones",
     "project_contact",
+    "project_coulomb_scalars",
     "restart_velocity",
     "row_velocity",
 ]
 
 
-@njit(cache=True)
-def project_contact(x, mu):
-    """Project ``x`` (one contact, length ``m``, normal first) on ``{|x_T| <= mu x_N}`` in place.
+@njit(cache=True, inline="always")
+def project_coulomb_scalars(xn, t1, t2, mu):
+    """``(xn, t1, t2)`` projected on ``{|(t1, t2)| <= mu xn}``, as three scalars.
 
-    ``m = 1`` is the half-line ``x_N >= 0``. Same closed form as
-    :func:`cocd.cones.project_coulomb`; with ``mu = 0`` a point ``(x_N < 0, 0)``
-    is outside the cone (``|0| <= 0 * x_N`` holds, ``x_N >= 0`` does not) and
-    goes to 0.
+    ``t2 = 0`` for a contact in 2D. Same closed form as
+    :func:`cocd.cones.project_coulomb`; with ``mu = 0`` a point ``(xn < 0, 0)`` is
+    outside the cone (``|0| <= 0 * xn`` holds, ``xn >= 0`` does not) and goes to 0.
+    Written in scalars so that hot loops (the local residual of :mod:`solvers.nscd_`)
+    use it without an array.
     """
-    m = x.shape[0]
-    xn = x[0]
-    if m == 1:
-        if xn < 0.0:
-            x[0] = 0.0
-        return
-    nt2 = 0.0
-    for k in range(1, m):
-        nt2 += x[k] * x[k]
-    nt = np.sqrt(nt2)
+    nt = np.sqrt(t1 * t1 + t2 * t2)
     if nt <= mu * xn and xn >= 0.0:
-        return
+        return xn, t1, t2
     if mu * nt <= -xn:
-        for k in range(m):
-            x[k] = 0.0
-        return
+        return 0.0, 0.0, 0.0
     # Here nt > 0 (nt = 0 is either inside or polar).
     s = (xn + mu * nt) / (1.0 + mu * mu)
-    x[0] = s
     f = mu * s / nt
-    for k in range(1, m):
-        x[k] *= f
+    return s, t1 * f, t2 * f
+
+
+@njit(cache=True)
+def project_contact(x, mu):
+    """Project ``x`` (one contact, normal first, ``m`` in {1, 2, 3} components, as
+    :class:`cocd.problem.Problem` allows) on ``{|x_T| <= mu x_N}`` in place.
+
+    ``m = 1`` is the half-line ``x_N >= 0``; otherwise :func:`project_coulomb_scalars`.
+    """
+    m = x.shape[0]
+    if m == 1:
+        if x[0] < 0.0:
+            x[0] = 0.0
+        return
+    x0, x1, x2 = project_coulomb_scalars(x[0], x[1], x[2] if m > 2 else 0.0, mu)
+    x[0] = x0
+    x[1] = x1
+    if m > 2:
+        x[2] = x2
 
 
 @njit(cache=True)

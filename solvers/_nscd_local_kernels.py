@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from solvers._contact_kernels import project_contact
+from solvers._contact_kernels import project_contact, project_coulomb_scalars
 
 __all__ = [
     "SEPARATED",
@@ -366,19 +366,10 @@ def _local_residual_at(W, r, mu, p0, p1, p2):
     x0 = p0 - rho * w0
     x1 = p1 - rho * w1
     x2 = p2 - rho * w2
-    # x <- P_K(x), as project_contact does.
     if m == 1:
         x0 = max(x0, 0.0)
     else:
-        nt = np.sqrt(x1 * x1 + x2 * x2)
-        if not (nt <= mu * x0 and x0 >= 0.0):
-            if mu * nt <= -x0:
-                x0, x1, x2 = 0.0, 0.0, 0.0
-            else:
-                x0 = (x0 + mu * nt) / (1.0 + mu * mu)
-                f = mu * x0 / nt
-                x1 *= f
-                x2 *= f
+        x0, x1, x2 = project_coulomb_scalars(x0, x1, x2, mu)
     return np.sqrt((p0 - x0) ** 2 + (p1 - x1) ** 2 + (p2 - x2) ** 2)
 
 
@@ -413,7 +404,7 @@ def local_solve_fb(W, Winv, r, mu, start, out, work=None):
         local_solve(W, Winv, r, mu, out)
         return True
     if work is None:
-        return _fb_newton(W, Winv, r, mu, start, out, np.empty((6 + m, m)))
+        return _fb_newton(W, Winv, r, mu, start, out, fb_workspace(m))
     return _fb_newton(W, Winv, r, mu, start, out, work)
 
 
@@ -440,7 +431,7 @@ def _fb_newton(W, Winv, r, mu, start, out, work):
         return True
     for k in range(m):
         work[_P, k] = start[k]
-    _project_row(work, _P, mu, m)
+    project_contact(work[_P], mu)
     _fb_value(W, r, mu, work, _P, _PHI)
     merit = _sq(work, _PHI, m)
     for _ in range(_FB_ITER):
@@ -476,34 +467,13 @@ def _fb_newton(W, Winv, r, mu, start, out, work):
             work[_P, k] = work[_TRIAL, k]
             work[_PHI, k] = work[_PHI_T, k]
         merit = merit_t
-    _project_row(work, _P, mu, m)
+    project_contact(work[_P], mu)
     if _residual_row(W, r, mu, work, _P, m) <= _FB_ACCEPT * scale:
         for k in range(m):
             out[k] = work[_P, k]
         return True
     local_solve(W, Winv, r, mu, out)
     return False
-
-
-@njit(cache=True, inline="always")
-def _project_row(work, row, mu, m):
-    """Row ``row`` of ``work`` (``m`` components) <- its projection on the Coulomb cone."""
-    xn = work[row, 0]
-    nt2 = 0.0
-    for k in range(1, m):
-        nt2 += work[row, k] * work[row, k]
-    nt = np.sqrt(nt2)
-    if nt <= mu * xn and xn >= 0.0:
-        return
-    if mu * nt <= -xn:
-        for k in range(m):
-            work[row, k] = 0.0
-        return
-    s = (xn + mu * nt) / (1.0 + mu * mu)
-    work[row, 0] = s
-    f = mu * s / nt
-    for k in range(1, m):
-        work[row, k] *= f
 
 
 @njit(cache=True, inline="always")
