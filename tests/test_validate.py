@@ -316,6 +316,11 @@ def test_an_erodible_layer_lengthens_the_runout(tmp_path):
     assert not table.reached_end.any()
     # At 0.6 s both fronts are still advancing down the slope, by many diameters a second.
     assert (table.end_speed_d_s > 5.0).all(), table.end_speed_d_s
+    # An advancing front spans at least half its least-squares travel over the window.
+    window = validate.RUNOUT_WINDOW * 0.6
+    d = float(table.layer_mm.max()) / 3.0 * 1e-3  # the 3-diameter layer's thickness / 3
+    travel = table.end_speed_d_s * d * window
+    assert (table.end_range_R0 * table.front0_m >= 0.5 * travel).all()
     assert (tmp_path / "erodible_front.png").stat().st_size > 0
 
 
@@ -345,6 +350,22 @@ def test_erodible_gaps_between_layers_over_two_packings(tmp_path):
     erodible.STUDY(**study, layers_d=[3.0], out=tmp_path, progress=_quiet([]))
     gaps = pd.read_csv(tmp_path / "erodible_gaps.csv")
     assert gaps.empty and {"gap_R0", "gap_R0_sd", "seed_gap_R0"} <= set(gaps.columns)
+
+
+def test_erodible_gaps_against_the_seed_in_spreads():
+    """From 3 to 5 grain layers the seed quotes a gap; the table says how many spreads
+    the packings' mean lies from it."""
+    rows = [
+        {"slope_deg": 16.0, "seed": seed, "layer_d": layer, "runout_m": runout,
+         "front0_m": 0.2, "reached_end": False}
+        for seed, (r3, r5) in enumerate([(0.50, 0.60), (0.50, 0.64), (0.52, 0.56)])
+        for layer, runout in ((3.0, r3), (5.0, r5))
+    ]  # fmt: skip
+    (gap,) = erodible._gaps(pd.DataFrame(rows), [3.0, 5.0]).itertuples()
+    per_seed = np.array([0.10, 0.14, 0.04]) / 0.2
+    assert gap.seed_gap_R0 == erodible.SEED_GAPS_3_TO_5[16.0] == 0.1
+    assert gap.gap_R0 == pytest.approx(per_seed.mean())
+    assert gap.seed_offset_sd == pytest.approx((per_seed.mean() - 0.1) / per_seed.std(ddof=1))
 
 
 def test_runout_grows_with_the_aspect_ratio(tmp_path):

@@ -132,7 +132,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         intro="Per slope, the runout of each layer minus that of the next thinner one, in "
         "R0 (the column's measured initial length), per packing, then their mean and sample "
         "spread; `seed_gap_R0`: the seed's value where its text gives one (3 to 5 grain "
-        "layers: about 10, 30 and 110 % of R0 at 16, 19 and 22 degrees).",
+        "layers: about 10, 30 and 110 % of R0 at 16, 19 and 22 degrees); `seed_offset_sd`: "
+        "(gap_R0 - seed_gap_R0) / gap_R0_sd, how many spreads the mean lies from the seed's "
+        "gap.",
     )
     figures = [_front_figure(out / "erodible_front.png", fronts, slopes, layers, cfg)]
     summary = _summary(ensemble, gaps, n, d_mean, seeds, bed_length, until, dt, cfg)
@@ -144,7 +146,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "`runout_ratio`: against the same packing and slope with no layer; "
         "`runout_over_R0`: runout_m / front0_m, R0 being the column's initial length as "
         "measured; `end_speed_d_s`: the front's speed over that last window, by least "
-        "squares, in diameters per second; `seed`: the packing; `n_layer`: grains in the "
+        "squares, in diameters per second; `end_range_R0`: the front's largest minus "
+        "smallest position over that window, in R0; `seed`: the packing; `n_layer`: grains in the "
         "layer; `reached_end`: the front came within two diameters of the bed's end "
         "(runout cut short)."
     )
@@ -188,6 +191,9 @@ def _row(
         "front_R0": final / front0,
         "runout_m": final - front0,
         "end_speed_d_s": speed / s.d_mean,
+        # How far the front moves back and forth over that window: grains that roll ahead
+        # of the mass count in the front only while they stay connected to it.
+        "end_range_R0": float(np.ptp(s.front[late])) / front0,
         # The front within two diameters of the bed's end: runout cut short.
         "reached_end": bool(np.max(s.front) >= bed - 2.0 * s.d_mean),
         "n_layer": int(s.stats.n.iloc[0]) - s.n_grains,
@@ -223,6 +229,8 @@ def _gaps(table: pd.DataFrame, layers: list[float]) -> pd.DataFrame:
         for sl, a, b in zip(out.slope_deg, out.from_layer_d, out.to_layer_d, strict=True)
     ]
     out["seed_gap_R0"] = seed_gap
+    # How many spreads the mean lies from the seed's gap (positive: larger than the seed's).
+    out["seed_offset_sd"] = (out.gap_R0 - out.seed_gap_R0) / out.gap_R0_sd
     return out
 
 
