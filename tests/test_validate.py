@@ -430,6 +430,47 @@ def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path
     assert ensemble.avalanche_deg_sd[0.1] == pytest.approx(angles.std(ddof=1))
 
 
+def test_avalanche_in_3d_two_at_once_and_the_friction_for_a_target_angle(tmp_path):
+    """Spheres in a square box, two sequences in two processes: the same physics as in
+    2D, the outputs under their own name, the calibration read from the ensemble."""
+    from cocd.validate.avalanche import STUDY_3D as avalanche3d
+
+    kwargs = dict(n=150, width_d=11, mus=[0.3, 0.8], start_deg=14, step_deg=3.0, hold=0.05)
+    table = avalanche3d(workers=2, out=tmp_path, progress=_quiet([]), **kwargs)
+    low, high = table.set_index("mu").loc[0.3], table.set_index("mu").loc[0.8]
+    assert (table.n_grains == 150).all()
+    assert (table.avalanche_deg >= table.stop_deg).all()
+    assert high.avalanche_deg > low.avalanche_deg
+    assert 10.0 < low.avalanche_deg < 45.0 and 10.0 < high.avalanche_deg < 45.0
+    assert not (tmp_path / "avalanche.csv").exists()  # the 2D study's outputs are apart
+    trace = pd.read_csv(tmp_path / "avalanche3d_trace.csv")
+    assert set(trace.phase) == {"up", "down"} and set(trace.mu) == {0.3, 0.8}
+    (cal,) = pd.read_csv(tmp_path / "avalanche3d_calibration.csv").itertuples()
+    target = 0.5 * (low.avalanche_deg + high.avalanche_deg)
+    assert cal.target_deg == 23.7
+    # Run again with the midpoint as the target: both sequences are read back, and the
+    # coefficient found is the midpoint's.
+    lines: list[str] = []
+    again = avalanche3d(target_deg=target, out=tmp_path, progress=lines.append, **kwargs)
+    assert sum("already measured" in line for line in lines) == 2
+    assert np.allclose(again.avalanche_deg, table.avalanche_deg)
+    (cal,) = pd.read_csv(tmp_path / "avalanche3d_calibration.csv").itertuples()
+    assert cal.mu == pytest.approx(0.55) and (cal.mu_below, cal.mu_above) == (0.3, 0.8)
+
+
+def test_calibration_interpolates_between_the_bracketing_coefficients():
+    from cocd.validate.avalanche import calibrate
+
+    ensemble = pd.DataFrame({"mu": [0.8, 0.2, 0.4], "avalanche_deg": [26.0, 14.0, 22.0]})
+    (row,) = calibrate(ensemble, 23.0).itertuples()
+    assert row.mu == pytest.approx(0.4 + 0.4 / 4.0)  # 1 of the 4 degrees from 0.4 to 0.8
+    assert row.mu_low == pytest.approx(0.4) and row.mu_high == pytest.approx(0.6)
+    assert (row.mu_below, row.angle_below_deg, row.mu_above) == (0.4, 22.0, 0.8)
+    # Not bracketed: NaN, not an extrapolation.
+    (row,) = calibrate(ensemble, 30.0).itertuples()
+    assert math.isnan(row.mu) and math.isnan(row.mu_below)
+
+
 def test_two_power_laws_are_recovered():
     from cocd.bench.metrics import fit_two_power_laws
 

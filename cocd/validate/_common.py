@@ -516,7 +516,7 @@ def collapse_runs(
         for k in todo:
             series[k] = _collapse(jobs[k], progress)
     else:
-        made = _collapse_apart([jobs[k] for k in todo], min(workers, len(todo)), progress)
+        made = run_apart(_collapse, [jobs[k] for k in todo], min(workers, len(todo)), progress)
         for k, s in zip(todo, made, strict=True):
             series[k] = s
     done = [(job, s) for job, s in zip(jobs, series, strict=True) if s is not None]
@@ -535,10 +535,10 @@ def _collapse(job: CollapseJob, progress: Callable[[str], Any]) -> CollapseSerie
     return collapse_series(job, progress)
 
 
-def _worker(job: CollapseJob, conn: Any) -> None:
-    """A worker process: run ``job``, sending its progress lines, then its series or
-    its error, through ``conn``. An interrupt is the parent's to handle; a stop from
-    the parent ends the run as an interrupt would (its run file keeps its frames)."""
+def _worker(task: Callable[[Any, Callable[[str], Any]], Any], job: Any, conn: Any) -> None:
+    """A worker process: ``task(job, progress)``, sending its progress lines, then its
+    result or its error, through ``conn``. An interrupt is the parent's to handle; a stop
+    from the parent ends the task as an interrupt would (a run file keeps its frames)."""
     import signal
 
     def stop(*_: Any) -> None:
@@ -547,7 +547,7 @@ def _worker(job: CollapseJob, conn: Any) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, stop)
     try:
-        conn.send(("done", _collapse(job, lambda line: conn.send(("line", line)))))
+        conn.send(("done", task(job, lambda line: conn.send(("line", line)))))
     except KeyboardInterrupt:  # stopped by the parent, which knows why
         pass
     except Exception as exc:  # sent to the parent, which raises it
@@ -559,9 +559,20 @@ def _worker(job: CollapseJob, conn: Any) -> None:
         conn.close()
 
 
-def _collapse_apart(
-    jobs: Sequence[CollapseJob], workers: int, progress: Callable[[str], Any]
-) -> list[CollapseSeries]:
+def run_apart(
+    task: Callable[[Any, Callable[[str], Any]], Any],
+    jobs: Sequence[Any],
+    workers: int,
+    progress: Callable[[str], Any],
+    on_done: Callable[[int, Any], Any] | None = None,
+) -> list[Any]:
+    """``task(job, progress)`` for every job, ``workers`` at once, each in a process of its
+    own started with its libraries on one thread (:data:`ONE_THREAD`); the results in the
+    jobs' order. ``task`` is a module-level function (it is pickled to the process) and a
+    job has a ``label``. Progress lines come back to ``progress``; ``on_done(k, result)``
+    is called as job ``k`` finishes (to keep it at once). After a failure no other job
+    starts: the running ones finish, then its error is raised. Ctrl-C or SIGTERM stops
+    the processes as an interrupt would."""
     import multiprocessing
     import signal
     import threading
@@ -576,23 +587,24 @@ def _collapse_apart(
             if signal.getsignal(number) is not signal.SIG_IGN:
                 handlers[number] = signal.signal(number, lambda n, _: asked.append(n))
     try:
-        return _collapse_with(
-            jobs, workers, progress, multiprocessing.get_context("spawn"), wait, asked
-        )
+        context = multiprocessing.get_context("spawn")
+        return _run_with(task, jobs, workers, progress, context, wait, asked, on_done)
     finally:
         for number, handler in handlers.items():
             signal.signal(number, signal.SIG_DFL if handler is None else handler)
 
 
-def _collapse_with(
-    jobs: Sequence[CollapseJob],
+def _run_with(
+    task: Callable[[Any, Callable[[str], Any]], Any],
+    jobs: Sequence[Any],
     workers: int,
     progress: Callable[[str], Any],
     context: Any,
     wait: Callable[..., Any],
     asked: list[int],
-) -> list[CollapseSeries]:
-    results: dict[int, CollapseSeries] = {}
+    on_done: Callable[[int, Any], Any] | None = None,
+) -> list[Any]:
+    results: dict[int, Any] = {}
     running: dict[Any, tuple[int, Any]] = {}  # parent's end of the pipe -> (job, process)
     waiting = list(range(len(jobs)))
     failure: BaseException | None = None
@@ -604,7 +616,7 @@ def _collapse_with(
             while waiting and failure is None and len(running) < workers:
                 k = waiting.pop(0)
                 mine, theirs = context.Pipe(duplex=False)
-                process = context.Process(target=_worker, args=(jobs[k], theirs), daemon=True)
+                process = context.Process(target=_worker, args=(task, jobs[k], theirs), daemon=True)
                 os.environ.update(ONE_THREAD)  # what the process starts with
                 try:
                     process.start()
@@ -623,7 +635,7 @@ def _collapse_with(
                         "error",
                         CocdError(
                             f"{jobs[k].label}: its process stopped (exit code {process.exitcode}); "
-                            "finished runs are kept and this one resumes when the case is run again"
+                            "what finished is kept, and the case run again takes up the rest"
                         ),
                     )
                 if kind == "line":
@@ -634,6 +646,8 @@ def _collapse_with(
                 process.join()
                 if kind == "done":
                     results[k] = value
+                    if on_done is not None:
+                        on_done(k, value)
                 elif failure is None:
                     failure = value
     except BaseException:
