@@ -431,7 +431,7 @@ def _fb_newton(W, Winv, r, mu, start, out, work):
         return True
     for k in range(m):
         work[_P, k] = start[k]
-    project_contact(work[_P], mu)
+    project_contact(work[_P, :m], mu)
     _fb_value(W, r, mu, work, _P, _PHI)
     merit = _sq(work, _PHI, m)
     for _ in range(_FB_ITER):
@@ -467,7 +467,7 @@ def _fb_newton(W, Winv, r, mu, start, out, work):
             work[_P, k] = work[_TRIAL, k]
             work[_PHI, k] = work[_PHI_T, k]
         merit = merit_t
-    project_contact(work[_P], mu)
+    project_contact(work[_P, :m], mu)
     if _residual_row(W, r, mu, work, _P, m) <= _FB_ACCEPT * scale:
         for k in range(m):
             out[k] = work[_P, k]

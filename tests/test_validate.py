@@ -435,10 +435,12 @@ def test_avalanche_in_3d_two_at_once_and_the_friction_for_a_target_angle(tmp_pat
     2D, the outputs under their own name, the calibration read from the ensemble."""
     from cocd.validate.avalanche import STUDY_3D as avalanche3d
 
-    kwargs = dict(n=150, width_d=11, mus=[0.3, 0.8], start_deg=14, step_deg=3.0, hold=0.05)
+    # About 2.5 diameters deep; a duplicated coefficient is run once.
+    kwargs = dict(n=400, width_d=12, mus=[0.3, 0.8, 0.3], start_deg=14, step_deg=3.0, hold=0.05)
     table = avalanche3d(workers=2, out=tmp_path, progress=_quiet([]), **kwargs)
+    assert len(table) == 2
     low, high = table.set_index("mu").loc[0.3], table.set_index("mu").loc[0.8]
-    assert (table.n_grains == 150).all()
+    assert (table.n_grains == 400).all()
     assert (table.avalanche_deg >= table.stop_deg).all()
     assert high.avalanche_deg > low.avalanche_deg
     assert 10.0 < low.avalanche_deg < 45.0 and 10.0 < high.avalanche_deg < 45.0
@@ -448,6 +450,8 @@ def test_avalanche_in_3d_two_at_once_and_the_friction_for_a_target_angle(tmp_pat
     (cal,) = pd.read_csv(tmp_path / "avalanche3d_calibration.csv").itertuples()
     target = 0.5 * (low.avalanche_deg + high.avalanche_deg)
     assert cal.target_deg == 23.7
+    cells = pd.read_csv(tmp_path / "runs" / "avalanche3d" / "cells.csv")
+    assert cells.setup.str.endswith(" side_mu=0").all()  # frictionless sidewalls by default
     # Run again with the midpoint as the target: both sequences are read back, and the
     # coefficient found is the midpoint's.
     lines: list[str] = []
@@ -569,6 +573,9 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["runout", "--aspects", "1,2,3,4"], "at least 6 distinct aspect ratios"),
         (["runout", "--aspects", "1,1,1,1,1,1"], "at least 6 distinct aspect ratios"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
+        (["avalanche3d", "--width-d", "8"], "width_d must be at least 12 diameters"),
+        (["avalanche3d", "--target-deg", "95"], "target_deg must be between 0 and 90"),
+        (["avalanche3d", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
     ):
         result = runner.invoke(app, ["validate", *args, *out])
         assert result.exit_code == 2, (args, result.output)

@@ -65,8 +65,9 @@ HOLD_COLUMNS = [
 ]  # fmt: skip
 
 
-#: The narrowest box whose surface :func:`surface_angle` can fit, in diameters.
-MIN_WIDTH_D = 11.0
+#: The narrowest box whose surface :func:`surface_angle` can fit, in diameters: 3 from
+#: each wall, at least 4 between, and room for the layer to pull off its walls.
+MIN_WIDTH_D = 12.0
 
 
 def surface_angle(scene: Any, tilt_deg: float, *, margin_d: float = 3.0) -> float:
@@ -151,6 +152,11 @@ class Settings3D(Settings):
     n: int = option(1000, "Spheres in the layer.")
     width_d: float = option(15.0, "Inner side of the square box, in diameters.")
     start_deg: float = option(10.0, "First tilt (degrees).")
+    side_mu: float = option(
+        0.0,
+        "Friction of the box's two walls along the slope, the channel's sidewalls (0: a "
+        "wide channel, as seed 001's 20 cm flume is at 400 bead diameters).",
+    )
 
 
 @dataclass(frozen=True)
@@ -178,12 +184,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     and packing.
     """
 
-    mus = sorted(base.positive_list("mus", cfg.mus))
+    mus = sorted(set(base.positive_list("mus", cfg.mus)))
     n = base.positive_int("n", cfg.n, 10)
     width_d, diameter, step_deg, hold, dt, v_flow = base.positive_list(
         "width_d, diameter, step_deg, hold, dt, v_flow",
         [cfg.width_d, cfg.diameter, cfg.step_deg, cfg.hold, cfg.dt, cfg.v_flow],
     )
+    if not (math.isfinite(cfg.target_deg) and 0.0 < cfg.target_deg < 90.0):
+        raise CocdError(f"target_deg must be between 0 and 90 degrees, got {cfg.target_deg!r}")
     if width_d < MIN_WIDTH_D:
         raise CocdError(
             f"width_d must be at least {MIN_WIDTH_D:g} diameters (the surface is fitted 3 "
@@ -199,6 +207,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"hold={hold:g} step={step_deg:g} start={cfg.start_deg:g} d={diameter:g} "
         f"width={width_d:g}d v_flow={v_flow:g}"
     )
+    if isinstance(cfg, Settings3D):
+        if not (math.isfinite(cfg.side_mu) and cfg.side_mu >= 0.0):
+            raise CocdError(f"side_mu must be a number >= 0, got {cfg.side_mu!r}")
+        setup += f" side_mu={cfg.side_mu:g}"
     seeds = base.positive_int("seeds", cfg.seeds)
     workers = base.positive_int("workers", cfg.workers)
     cells = Results(
@@ -285,7 +297,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         calibration,
         title="Grain friction for a target avalanche angle",
         intro="`mu`: the friction coefficient at which the mean avalanche angle "
-        "(`avalanche_ensemble`) reaches `target_deg`, by linear interpolation between the "
+        f"(`{name}_ensemble`) reaches `target_deg`, by linear interpolation between the "
         "two coefficients that bracket it (`mu_below`, `mu_above`, with their mean angles); "
         "`mu_low` and `mu_high`: the same for the target minus and plus "
         f"{CALIBRATION_BAND_DEG:g} deg (seed 001's band); NaN where the target is not "
@@ -297,7 +309,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         *files,
     ]
     grains = "discs" if cfg.dim == 2 else "spheres"
-    box = f"a box {width_d:g} d wide" if cfg.dim == 2 else f"a square box {width_d:g} d a side"
+    box = (
+        f"a box {width_d:g} d wide"
+        if not isinstance(cfg, Settings3D)
+        else f"a square box {width_d:g} d a side, sidewall friction {cfg.side_mu:g}"
+    )
     cal = calibration.iloc[0]
     found = (
         f"the mean avalanche angle reaches {cal.target_deg:g} deg at mu = {cal.mu:.3g}"
@@ -377,11 +393,21 @@ def _sequence(
     job: _Sequence, progress: Callable[[str], Any]
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Tilt one packing up until it flows, then down until it stops: its row of the
-    table and its holds."""
+    table and its holds. An error names the sequence (several may run at once)."""
+    try:
+        return _tilt(job, progress)
+    except CocdError as exc:
+        raise CocdError(f"{job.label}: {exc}") from None
+
+
+def _tilt(
+    job: _Sequence, progress: Callable[[str], Any]
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     from cocd.builders import static_box
+    from cocd.scene import Wall
     from cocd.stepper import Stepper
 
-    cfg, seed, mu, name = job.cfg, job.seed, job.mu, job.cfg.name
+    cfg, seed, mu = job.cfg, job.seed, job.mu
     scene = static_box(
         cfg.dim,
         n_grains=cfg.n,
@@ -390,6 +416,12 @@ def _sequence(
         mu=mu,
         seed=seed,
     )
+    if isinstance(cfg, Settings3D):
+        # The walls whose normal is along y: the channel's sidewalls, with their own friction.
+        scene.walls = tuple(
+            Wall(w.point, w.normal, mu=cfg.side_mu) if abs(w.normal[1]) > 0.5 else w
+            for w in scene.walls
+        )
     stepper = Stepper(scene, cfg.dt, solver=cfg.solver, tol=cfg.tol, fallback=cfg.fallback)
     trace: list[dict[str, Any]] = []
     tilt = cfg.start_deg
@@ -398,14 +430,14 @@ def _sequence(
     while _hold(stepper, tilt, job.hold_steps, "up", trace, seed) <= job.threshold:
         tilt += cfg.step_deg
         if tilt > cfg.max_deg:
-            raise CocdError(f"{name}, mu = {mu:g}: no flow up to {cfg.max_deg:g} deg")
+            raise CocdError(f"no flow up to {cfg.max_deg:g} deg")
     avalanche_deg = trace[-1]["surface_before_deg"]
     avalanche_tilt = tilt
     progress(f"{job.label} flows at tilt {tilt:g} deg; lowering the tilt")
     while True:
         tilt -= cfg.step_deg
         if tilt < 0.0:
-            raise CocdError(f"{name}, mu = {mu:g}: still flowing at 0 deg")
+            raise CocdError("still flowing at 0 deg")
         if _hold(stepper, tilt, job.hold_steps, "down", trace, seed) <= job.threshold:
             break
     row = {
@@ -449,7 +481,7 @@ def _hold(
     try:
         stepper.run(steps)
     except SolverError as exc:
-        raise CocdError(f"mu = {scene.mu:g}, tilt {tilt:g} deg: {exc}") from None
+        raise CocdError(f"tilt {tilt:g} deg: {exc}") from None
     speed = float(np.mean(np.linalg.norm(scene.velocities[scene.free], axis=1)))
     trace.append(
         {

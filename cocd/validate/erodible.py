@@ -230,7 +230,8 @@ def _gaps(table: pd.DataFrame, layers: list[float]) -> pd.DataFrame:
     ]
     out["seed_gap_R0"] = seed_gap
     # How many spreads the mean lies from the seed's gap (positive: larger than the seed's).
-    out["seed_offset_sd"] = (out.gap_R0 - out.seed_gap_R0) / out.gap_R0_sd
+    # (NaN without a spread: one packing, or packings that agree exactly.)
+    out["seed_offset_sd"] = (out.gap_R0 - out.seed_gap_R0) / out.gap_R0_sd.where(out.gap_R0_sd > 0)
     return out
 
 
