@@ -140,6 +140,23 @@ def test_static_box_3d_packing_fraction():
 def test_static_box_2d():
     scene = ready(static_box(2, n_grains=100, diameter=0.01))
     assert scene.n_grains == 100 and len(scene.walls) == 3
+    with pytest.raises(SceneError, match="length is for a 3D box"):
+        static_box(2, n_grains=100, diameter=0.01, length=0.3)
+
+
+def test_static_box_3d_long():
+    """A box longer than wide: its end walls at x = length, sidewalls at y = width, and
+    every grain settled between them."""
+    scene = ready(static_box(3, n_grains=120, diameter=0.01, width=0.05, length=0.15))
+    def far(axis: int) -> float:
+        return max(float(w.point[axis]) for w in scene.walls if abs(w.normal[axis]) == 1.0)
+
+    assert far(0) == pytest.approx(0.15) and far(1) == pytest.approx(0.05)
+    x, r = scene.positions, scene.radii
+    assert np.all(x[:, 0] - r > -1e-4) and np.all(x[:, 0] + r < 0.15 + 1e-4)
+    assert np.all(x[:, 1] - r > -1e-4) and np.all(x[:, 1] + r < 0.05 + 1e-4)
+    # Spread along the length, not piled in a square corner.
+    assert np.ptp(x[:, 0]) > 0.1
 
 
 def test_cache_hit_skips_stepping_and_corruption_rebuilds(packing_cache, monkeypatch):

@@ -436,7 +436,9 @@ def test_avalanche_in_3d_two_at_once_and_the_friction_for_a_target_angle(tmp_pat
     from cocd.validate.avalanche import STUDY_3D as avalanche3d
 
     # About 2.5 diameters deep; a duplicated coefficient is run once.
-    kwargs = dict(n=400, width_d=12, mus=[0.3, 0.8, 0.3], start_deg=14, step_deg=3.0, hold=0.05)
+    kwargs = dict(
+        n=400, length_d=12, width_d=12, mus=[0.3, 0.8, 0.3], start_deg=14, step_deg=3.0, hold=0.05
+    )
     table = avalanche3d(workers=2, out=tmp_path, progress=_quiet([]), **kwargs)
     assert len(table) == 2
     low, high = table.set_index("mu").loc[0.3], table.set_index("mu").loc[0.8]
@@ -573,7 +575,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["runout", "--aspects", "1,2,3,4"], "at least 6 distinct aspect ratios"),
         (["runout", "--aspects", "1,1,1,1,1,1"], "at least 6 distinct aspect ratios"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
-        (["avalanche3d", "--width-d", "8"], "width_d must be at least 12 diameters"),
+        (["avalanche", "--width-d", "8"], "width_d must be at least 12 diameters"),
+        (["avalanche3d", "--length-d", "8"], "length_d must be at least 12 diameters"),
         (["avalanche3d", "--target-deg", "95"], "target_deg must be between 0 and 90"),
         (["avalanche3d", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
     ):

@@ -194,12 +194,14 @@ def deposit(
     return result.scene.positions
 
 
-def box_walls(dim: int, box: float) -> list[Wall]:
-    """A floor and side walls at 0 and ``box`` along every horizontal axis."""
+def box_walls(dim: int, box: float | FloatArray) -> list[Wall]:
+    """A floor and side walls at 0 and ``box`` along every horizontal axis (``box``: one
+    size for all, or one per horizontal axis)."""
+    sizes = np.broadcast_to(np.asarray(box, dtype=float), (dim - 1,))
     walls = [floor_wall(dim)]
     for axis in range(dim - 1):
         e = np.eye(dim)[axis]
-        walls += [Wall(np.zeros(dim), e), Wall(box * e, -e)]
+        walls += [Wall(np.zeros(dim), e), Wall(sizes[axis] * e, -e)]
     return walls
 
 

@@ -392,6 +392,7 @@ def static_box(
     n_grains: int,
     diameter: float = 0.005,
     width: float | None = None,
+    length: float | None = None,
     polydispersity: float = 0.1,
     density: float = 2500.0,
     mu: float = 0.3,
@@ -413,6 +414,9 @@ def static_box(
     width : float, optional
         Inner side of the (square) box; default about ``n_grains ** (1/d)``
         diameters, so that the settled packing is roughly as tall as wide.
+    length : float, optional
+        3D only: the box's inner length along x, ``width`` being along y; default
+        ``width`` (a square box).
     polydispersity, density, mu, mu_wall : float
         As in :func:`column_collapse`.
     mu_prep : float
@@ -427,7 +431,7 @@ def static_box(
     -------
     Scene
         Velocities zero, floor at the last coordinate 0, side walls at 0 and
-        ``width``; no lid.
+        ``length`` (x) and ``width`` (y); no lid.
     """
     dim = check_dim(dim)
     n = check_count("n_grains", n_grains)
@@ -438,13 +442,19 @@ def static_box(
         width = float(side * d_mean * (np.pi / 6.0 if dim == 3 else np.pi / 4.0) ** (1.0 / dim))
         width = max(width, 4.0 * d_mean)
     box = positive_number(width, "width")
+    if length is not None and dim == 2:
+        raise SceneError("length is for a 3D box (in 2D the box is width long)")
+    horizontal = np.array([box] if dim == 2 else [box if length is None else length, box])
+    horizontal[0] = positive_number(float(horizontal[0]), "length")
     rng = np.random.default_rng(seed)
     radii = uniform_radii(n, d_mean, poly, rng)
-    if box < 2.2 * float(radii.max()):
-        raise SceneError(f"width {box} is too small for grains of diameter {2 * radii.max():.3g}")
-    horizontal = np.full(dim - 1, box)
+    if horizontal.min() < 2.2 * float(radii.max()):
+        raise SceneError(
+            f"the box ({' x '.join(f'{b:g}' for b in horizontal)}) is too small for grains "
+            f"of diameter {2 * radii.max():.3g}"
+        )
     positions = loose_lattice(dim, n, horizontal, 0.0, float(radii.max()), rng)
-    walls = box_walls(dim, box)
+    walls = box_walls(dim, horizontal)
     scene_kw = dict(density=density, mu=mu, mu_wall=mu_wall)
     settled = deposit([positions], [radii], 0, walls, scene_kw, mu_prep, solver, cache)
     return Scene(settled, radii, walls=walls, **scene_kw)  # type: ignore[arg-type]

@@ -1,8 +1,9 @@
 """``cocd validate avalanche`` (2D) and ``avalanche3d``: avalanche and stop angles of a
 tilted granular layer, and the grain friction that gives a target avalanche angle.
 
-A layer of discs, or of spheres in a square box, settled in a box
-(:func:`cocd.builders.static_box`) is tilted by rotating gravity,
+A layer of discs, or of spheres, settled in a box (:func:`cocd.builders.static_box`;
+in 3D ``length_d`` along the slope and ``width_d`` across it, between sidewalls of
+friction ``side_mu``) is tilted by rotating gravity,
 ``g (sin t, -cos t)`` or ``g (sin t, 0, -cos t)``, in steps of ``step_deg`` held
 ``hold`` seconds each:
 
@@ -148,10 +149,10 @@ class Settings3D(Settings):
 
     solver: str = option("apgd", "Convex backend of the COCD runs.")
     tol: float = option(1e-5, "Tolerance of the convex backend.")
-    mus: tuple[float, ...] = option((0.3, 0.5, 0.8), "Friction coefficients.", kind="floats")
-    n: int = option(1000, "Spheres in the layer.")
-    width_d: float = option(15.0, "Inner side of the square box, in diameters.")
-    start_deg: float = option(10.0, "First tilt (degrees).")
+    n: int = option(2000, "Spheres in the layer.")
+    length_d: float = option(40.0, "Box length along the slope, in diameters.")
+    width_d: float = option(8.0, "Box width across the slope, in diameters.")
+    start_deg: float = option(12.0, "First tilt (degrees).")
     side_mu: float = option(
         0.0,
         "Friction of the box's two walls along the slope, the channel's sidewalls (0: a "
@@ -178,10 +179,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     """Avalanche and stop angles of a tilted layer against the friction coefficient.
 
     ``n`` grains (discs or spheres, ``cfg.dim``) of mean ``diameter`` in a box
-    ``width_d`` diameters wide (square in 3D); ``v_flow`` is the flow threshold on the
-    mean grain speed, in units of ``sqrt(g d)``. Returns the table written to
-    ``<name>.csv`` (``avalanche`` or ``avalanche3d``), one row per friction coefficient
-    and packing.
+    ``width_d`` diameters wide (in 3D, ``length_d`` long and ``width_d`` across);
+    ``v_flow`` is the flow threshold on the mean grain speed, in units of ``sqrt(g d)``.
+    Returns the table written to ``<name>.csv`` (``avalanche`` or ``avalanche3d``), one
+    row per friction coefficient and packing.
     """
 
     mus = sorted(set(base.positive_list("mus", cfg.mus)))
@@ -192,10 +193,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     )
     if not (math.isfinite(cfg.target_deg) and 0.0 < cfg.target_deg < 90.0):
         raise CocdError(f"target_deg must be between 0 and 90 degrees, got {cfg.target_deg!r}")
-    if width_d < MIN_WIDTH_D:
+    along = "width_d"
+    length_d = width_d
+    if isinstance(cfg, Settings3D):
+        along, length_d = "length_d", base.positive_list("length_d", [cfg.length_d])[0]
+    if length_d < MIN_WIDTH_D:
         raise CocdError(
-            f"width_d must be at least {MIN_WIDTH_D:g} diameters (the surface is fitted 3 "
-            f"diameters away from each side wall), got {width_d:g}"
+            f"{along} must be at least {MIN_WIDTH_D:g} diameters (the surface is fitted 3 "
+            f"diameters away from each end wall), got {length_d:g}"
         )
     if not (0.0 <= cfg.start_deg < cfg.max_deg < 90.0):
         raise CocdError(f"need 0 <= start_deg < max_deg < 90, got {cfg.start_deg}, {cfg.max_deg}")
@@ -210,7 +215,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if isinstance(cfg, Settings3D):
         if not (math.isfinite(cfg.side_mu) and cfg.side_mu >= 0.0):
             raise CocdError(f"side_mu must be a number >= 0, got {cfg.side_mu!r}")
-        setup += f" side_mu={cfg.side_mu:g}"
+        setup += f" length={length_d:g}d side_mu={cfg.side_mu:g}"
     seeds = base.positive_int("seeds", cfg.seeds)
     workers = base.positive_int("workers", cfg.workers)
     cells = Results(
@@ -312,7 +317,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     box = (
         f"a box {width_d:g} d wide"
         if not isinstance(cfg, Settings3D)
-        else f"a square box {width_d:g} d a side, sidewall friction {cfg.side_mu:g}"
+        else f"a box {length_d:g} d long and {width_d:g} d wide, sidewall friction {cfg.side_mu:g}"
     )
     cal = calibration.iloc[0]
     found = (
@@ -413,6 +418,7 @@ def _tilt(
         n_grains=cfg.n,
         diameter=cfg.diameter,
         width=cfg.width_d * cfg.diameter,
+        length=cfg.length_d * cfg.diameter if isinstance(cfg, Settings3D) else None,
         mu=mu,
         seed=seed,
     )
