@@ -226,7 +226,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     hold_steps = max(1, round(hold / dt))
     threshold = v_flow * math.sqrt(G * diameter)
     jobs = []
-    for seed, mu in ((seed, mu) for seed in range(seeds) for mu in mus):
+    # Coefficient by coefficient, so that sequences running at once are of different
+    # packings: each builds its own (a packing is built once, then read from the cache).
+    for mu, seed in ((mu, seed) for mu in mus for seed in range(seeds)):
         if cells.has(seed, mu, setup):
             progress(f"{name}: mu = {mu:g}, seed {seed} already measured ({cells.path})")
         else:
