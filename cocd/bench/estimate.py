@@ -65,6 +65,9 @@ RATES: dict[str, float] = {
     # costs dominate there, and the estimate leans low.
     "erodible": 0.08,
     "avalanche": 0.067,  # cocd validate avalanche --n 100 --mus 0.4
+    # Per worker, packings read from the cache: cocd validate avalanche3d --mus
+    # 0.2,0.28,0.4 --seeds 3 --workers 2, its last two sequences (848 s, 54 962 units).
+    "avalanche3d": 0.031,
 }
 #: Rate for a command without an entry (runout_scaling, stability_threshold): 2D
 #: collapse runs of 100 discs (cocd validate erodible --n 100 --until 0.3).
