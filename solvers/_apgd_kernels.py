@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from solvers._contact_kernels import project_coulomb_scalars
+
 __all__ = [
     "csr_matvec",
     "csr_scaled_matvec_add",
@@ -35,14 +37,7 @@ def _project3(x0, x1, x2, mu, m):
     """The Coulomb-cone projection of ``(x0, x1, x2)`` (``m`` in {1, 2, 3}; unused parts 0)."""
     if m == 1:
         return max(x0, 0.0), 0.0, 0.0
-    nt = np.sqrt(x1 * x1 + x2 * x2)
-    if nt <= mu * x0 and x0 >= 0.0:
-        return x0, x1, x2
-    if mu * nt <= -x0:
-        return 0.0, 0.0, 0.0
-    s = (x0 + mu * nt) / (1.0 + mu * mu)
-    f = mu * s / nt
-    return s, x1 * f, x2 * f
+    return project_coulomb_scalars(x0, x1, x2, mu)
 
 
 @njit(cache=True, parallel=True)
