@@ -75,6 +75,16 @@ def test_column_walls_and_extent(dim):
     assert np.allclose(scene.gravity, np.eye(dim)[-1] * -9.81)
 
 
+def test_sidewall_friction_is_the_lateral_walls_own():
+    """mu_side sets the two channel walls' friction; the floor and back wall keep mu_wall."""
+    scene = column_collapse(3, n_grains=100, mu=0.4, mu_wall=0.3, mu_side=0.0)
+    lateral = [abs(w.normal[1]) > 0.5 for w in scene.walls]
+    assert sum(lateral) == 2
+    assert [w.mu for w, side in zip(scene.walls, lateral, strict=True) if side] == [0.0, 0.0]
+    assert all(w.mu is None for w, side in zip(scene.walls, lateral, strict=True) if not side)
+    assert scene.mu_wall == 0.3
+
+
 def test_slope_tilts_gravity():
     scene = column_collapse(3, n_grains=100, slope_deg=22.0)
     a = np.radians(22.0)
@@ -209,6 +219,8 @@ def test_deterministic_for_a_seed():
         (dict(n_grains=10, bed_length=0.1), "bed_length"),
         (dict(n_grains=10, density=0.0), "density"),
         (dict(n_grains=10, mu=-1.0), "mu"),
+        (dict(n_grains=10, mu_side=0.2), "mu_side"),
+        (dict(n_grains=10, dim=3, mu_side=-0.1), "mu_side"),
     ],
 )
 def test_bad_arguments_name_themselves(kwargs, name):

@@ -399,6 +399,53 @@ def test_runout_grows_with_the_aspect_ratio(tmp_path):
     assert (tmp_path / "runout_scaling.png").stat().st_size > 0
 
 
+def test_runout3d_sidewall_friction_holds_the_column(tmp_path):
+    """3D columns in a channel three diameters wide, with frictionless sidewalls and
+    with rough ones: taller columns run out further in both, and the walls' friction
+    shortens the runout and keeps more of the height."""
+    from cocd.validate import runout
+
+    aspects = [0.5, 0.7, 1.0, 1.4, 2.0, 4.0]
+    table = runout.STUDY_3D(
+        aspects=aspects,
+        area=0.004,
+        diameter=0.01,
+        width_d=3.0,
+        side_mus=[0.0, 0.5],
+        dt=5e-3,
+        rest_T=8.0,
+        min_time=0.5,
+        tol=1e-4,
+        out=tmp_path,
+        progress=_quiet([]),
+    )
+    assert sorted(set(table.side_mu)) == [0.0, 0.5]
+    assert (table.W_over_d == 3.0).all()
+    assert np.allclose(table.W_over_H0, 0.03 / table.H0_m)
+    assert table.n_grains.nunique() == 1  # the same columns in both channels
+    assert not table.reached_end.any()
+    by = table.set_index(["side_mu", "a"])
+    for side_mu in (0.0, 0.5):
+        assert by.runout[side_mu, 4.0] > 3.0 * by.runout[side_mu, 0.5]
+        assert by.Hf_over_H0[side_mu, 4.0] < 0.6 * by.Hf_over_H0[side_mu, 0.5]
+    rough, smooth = by.loc[0.5], by.loc[0.0]
+    assert rough.runout.mean() < 0.9 * smooth.runout.mean()
+    assert rough.Hf_over_H0.mean() > smooth.Hf_over_H0.mean()
+    fits = pd.read_csv(tmp_path / "runout3d_scaling_fit.csv")
+    assert sorted(zip(fits.side_mu, fits.quantity, strict=True)) == [
+        (m, q) for m in (0.0, 0.5) for q in ("(Lf - L0)/L0", "H0/Hf")
+    ]
+    ensemble = pd.read_csv(tmp_path / "runout3d_scaling_ensemble.csv")
+    assert len(ensemble) == 2 * len(aspects)
+    summary = json.loads((tmp_path / "runout3d_scaling.meta.json").read_text())["summary"]
+    for side_mu, name in ((0.0, "Frictionless sidewalls"), (0.5, "Sidewall friction 0.5")):
+        fit = fits[(fits.side_mu == side_mu) & (fits.quantity == "H0/Hf")].iloc[0]
+        assert name in summary
+        assert f"H0/Hf a^({fit.k_all:.2f} +- {fit.k_all_ci:.2f})" in summary
+    assert (tmp_path / "runout3d_scaling.png").stat().st_size > 0
+    assert not (tmp_path / "runout_scaling.csv").exists()  # kept apart from the 2D study
+
+
 def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path):
     from cocd.validate.avalanche import STUDY as avalanche
 
@@ -574,6 +621,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
         (["runout", "--aspects", "1,2,3,4"], "at least 6 distinct aspect ratios"),
         (["runout", "--aspects", "1,1,1,1,1,1"], "at least 6 distinct aspect ratios"),
+        (["runout3d", "--side-mus", "0,-0.1"], "side_mus must be numbers >= 0"),
+        (["runout3d", "--width-d", "1"], "width_d must be at least 2 diameters"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
         (["avalanche", "--width-d", "8"], "width_d must be at least 12 diameters"),
         (["avalanche3d", "--length-d", "8"], "length_d must be at least 12 diameters"),

@@ -23,7 +23,7 @@ from cocd.builders._common import (
     set_groups,
     uniform_radii,
 )
-from cocd.checks import checked, nonnegative_number, positive_number
+from cocd.checks import checked, friction_coefficient, nonnegative_number, positive_number
 from cocd.errors import SceneError
 from cocd.scene import Scene, Wall
 
@@ -192,6 +192,7 @@ def column_collapse(
     density: float = 2500.0,
     mu: float = 0.3,
     mu_wall: float | None = None,
+    mu_side: float | None = None,
     bed: str = "smooth",
     erodible_thickness: float = 0.0,
     bed_length: float | None = None,
@@ -235,6 +236,10 @@ def column_collapse(
         mean diameter is exact.
     density, mu, mu_wall : float
         Material; ``mu_wall`` defaults to ``mu``.
+    mu_side : float, optional
+        3D only: friction of the two lateral walls, e.g. 0 for a wide channel
+        (frictionless sidewalls) or a measured grain-wall coefficient for a
+        narrow one; default ``mu_wall``.
     bed : {"smooth", "rough"}
         Rough: a layer of glued (fixed) grains of the mean diameter covers the
         floor over ``bed_length``.
@@ -268,6 +273,10 @@ def column_collapse(
     height = positive_number(height, "height")
     if dim == 2 and width is not None:
         raise SceneError("width is the 3D channel width; leave it None in 2D")
+    if mu_side is not None:
+        if dim == 2:
+            raise SceneError("mu_side is the 3D sidewalls' friction; leave it None in 2D")
+        mu_side = friction_coefficient(mu_side, "mu_side")
     chan = positive_number(0.20 if width is None else width, "width")
     if not (np.isfinite(slope_deg) and -90.0 < slope_deg < 90.0):
         raise SceneError(f"slope_deg must be in (-90, 90), got {slope_deg}")
@@ -309,7 +318,10 @@ def column_collapse(
     up[-1] = 1.0
     walls = [Wall(np.zeros(dim), up), Wall(np.zeros(dim), np.eye(dim)[0])]
     if dim == 3:
-        walls += [Wall(np.zeros(3), (0.0, 1.0, 0.0)), Wall((0.0, chan, 0.0), (0.0, -1.0, 0.0))]
+        walls += [
+            Wall(np.zeros(3), (0.0, 1.0, 0.0), mu=mu_side),
+            Wall((0.0, chan, 0.0), (0.0, -1.0, 0.0), mu=mu_side),
+        ]
     if erodible_thickness > 0.0:
         walls.append(Wall(bed_len * np.eye(dim)[0], -np.eye(dim)[0]))
     gate = Wall(length * np.eye(dim)[0], -np.eye(dim)[0])

@@ -1,11 +1,17 @@
-"""``cocd validate runout``: runout and deposit height against the column's aspect ratio.
+"""``cocd validate runout`` and ``runout3d``: runout and deposit height against the
+column's aspect ratio.
 
-2D columns of the same grains and the same cross-section area ``L0 H0``, with
+Columns of the same grains and the same cross-section area ``L0 H0``, with
 aspect ratios ``a = H0 / L0`` from wide to tall, collapse on a rough
 horizontal bed against a back wall (the half-collapse of the channel
 experiments) until they stop. The final runout ``(L_f - L0) / L0`` and the
 deposit's height ``H_f / H0`` are fitted by two power laws of ``a``, split
 where the fit is best (the regime change).
+
+``runout`` collapses 2D columns of discs. ``runout3d`` collapses columns of
+spheres in a channel ``width_d`` diameters wide, once per sidewall friction in
+``side_mus``: seed 001's wide channel is its 3D collapse with frictionless
+sidewalls, its narrow one a channel with the beads' wall friction 0.23.
 
 What they are set against:
 
@@ -25,7 +31,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
@@ -38,7 +44,7 @@ from cocd.errors import CocdError
 from cocd.validate import _common as base
 from cocd.validate._common import CollapseSettings, register
 
-__all__ = ["STUDY", "Settings", "run"]
+__all__ = ["STUDY", "STUDY_3D", "Settings", "Settings3D", "run"]
 
 FloatArray = NDArray[np.float64]
 G = 9.81
@@ -47,6 +53,10 @@ G = 9.81
 @dataclass(frozen=True)
 class Settings(CollapseSettings):
     """The options of ``cocd validate runout``."""
+
+    #: Discs (2) or spheres (3); the name of the outputs.
+    dim: ClassVar[int] = 2
+    name: ClassVar[str] = "runout_scaling"
 
     aspects: tuple[float, ...] = option(
         (0.5, 0.8, 1.2, 1.8, 2.7, 4.0, 6.0, 9.0, 13.0, 20.0),
@@ -64,13 +74,46 @@ class Settings(CollapseSettings):
     )
 
 
-def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
-    """Collapse 2D columns of aspect ratios ``aspects`` and fit the runout and height laws.
+@dataclass(frozen=True)
+class Settings3D(Settings):
+    """The options of ``cocd validate runout3d``: columns of spheres in a channel."""
 
-    Each column has cross-section ``area`` (m^2), ``L0 = sqrt(area / a)``,
-    ``H0 = sqrt(area a)``, grains of mean ``diameter`` on a rough bed long
-    enough for the runout, and runs for ``max(min_time, rest_T sqrt(H0 / g))``
-    seconds. Returns the table written to ``runout_scaling.csv``, one row per ``a``.
+    dim: ClassVar[int] = 3
+    name: ClassVar[str] = "runout3d_scaling"
+
+    solver: str = option("apgd", "Convex backend of the COCD runs.")
+    tol: float = option(1e-5, "Tolerance of the convex backend.")
+    aspects: tuple[float, ...] = option(
+        (1.0, 1.4, 1.9, 2.7, 3.8, 5.3, 7.4, 10.0, 14.0, 20.0),
+        "Aspect ratios H0/L0 (seed 001: logarithmically from 1 to 20).",
+        kind="floats",
+    )
+    area: float = option(0.01, "Column cross-section L0 H0 along the channel (m^2).")
+    diameter: float = option(0.005, "Mean grain diameter (m).")
+    mu: float = option(
+        0.25,
+        "Friction coefficient of the grains and of the back wall (0.25: the grain friction "
+        "whose avalanche angle in 3D is seed 001's 23.7 degrees, cocd validate avalanche3d).",
+    )
+    width_d: float = option(6.0, "Channel width W, in mean diameters.")
+    side_mus: tuple[float, ...] = option(
+        (0.0, 0.23),
+        "Sidewall friction coefficients, one channel each (0: seed 001's wide channel, "
+        "frictionless sidewalls; 0.23: its beads on the walls of its narrow channel).",
+        kind="numbers",
+    )
+
+
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
+    """Collapse columns of aspect ratios ``aspects`` and fit the runout and height laws.
+
+    Each column has cross-section ``area`` (m^2) along the flow, ``L0 = sqrt(area / a)``,
+    ``H0 = sqrt(area a)``, grains of mean ``diameter`` on a rough bed long enough for
+    the runout, and runs for ``max(min_time, rest_T sqrt(H0 / g))`` seconds. In 3D
+    (:class:`Settings3D`) the channel is ``width_d`` diameters wide and each column
+    runs once per sidewall friction of ``side_mus``, each fitted apart. Returns the
+    table written to ``<name>.csv`` (``runout_scaling`` or ``runout3d_scaling``), one
+    row per run.
     """
     aspects = sorted(set(base.positive_list("aspects", cfg.aspects)))
     if len(aspects) < 6:
@@ -80,34 +123,32 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "area, diameter, dt, rest_T, min_time",
         [cfg.area, cfg.diameter, cfg.dt, cfg.rest_T, cfg.min_time],
     )
+    channels: list[float | None] = [None]
+    width_d = math.nan
+    if isinstance(cfg, Settings3D):
+        width_d = base.positive_list("width_d", [cfg.width_d])[0]
+        if width_d < 2.0:
+            raise CocdError(f"width_d must be at least 2 diameters, got {width_d:g}")
+        if not cfg.side_mus or any(not (math.isfinite(m) and m >= 0.0) for m in cfg.side_mus):
+            raise CocdError(f"side_mus must be numbers >= 0, got {list(cfg.side_mus)!r}")
+        channels = list(dict.fromkeys(float(m) for m in cfg.side_mus))
+    name, dim = cfg.name, cfg.dim
     out = Path(out)
     frame_dt = base.frame_interval([0.01], [dt])
-    # About 0.8 of the column's area is discs.
-    estimate.announce(
-        "runout_scaling",
-        [
-            (
-                0.8 * area / (math.pi * diameter**2 / 4),
-                max(min_time, rest_T * math.sqrt(math.sqrt(area * a) / G)) / dt,
-            )
-            for a in aspects
-            for _ in range(seeds)
-        ],
-        out=out,
-        progress=progress,
-        workers=cfg.workers,
-    )
     cases = []
     jobs = []
-    for seed, a in ((seed, a) for seed in range(seeds) for a in aspects):
+    # Channel by channel, then packing by packing: a channel's laws are complete first.
+    for side_mu, seed, a in (
+        (m, seed, a) for m in channels for seed in range(seeds) for a in aspects
+    ):
         L0, H0 = math.sqrt(area / a), math.sqrt(area * a)
         until = max(min_time, rest_T * math.sqrt(H0 / G))
         until = math.ceil(until / frame_dt - 1e-9) * frame_dt
         # Room for the runout: the 2D laws give (Lf - L0)/L0 of about 2 a for small a,
         # about 3 a^(2/3) beyond; twice that, and at least 4 L0.
         bed = L0 * (1.0 + max(4.0, 2.0 * max(2.0 * a, 3.0 * a ** (2.0 / 3.0))))
-        params = {
-            "dim": 2,
+        params: dict[str, Any] = {
+            "dim": dim,
             "diameter": diameter,
             "length": L0,
             "height": H0,
@@ -115,33 +156,51 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             "bed_length": bed,
             "mu": cfg.mu,
         }
-        cases.append((seed, a, L0, H0, bed))
+        label = f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}"
+        if side_mu is not None:
+            params.update(width=width_d * diameter, mu_side=side_mu)
+            label += f"_W{width_d:g}d_side{side_mu:g}"
+        cases.append((side_mu, seed, a, L0, H0, bed))
         jobs.append(
             base.collapse_job(
                 out,
-                "scaling",
-                f"a{a:g}_d{diameter * 1e3:g}mm_mu{cfg.mu:g}",
+                "scaling" if dim == 2 else "scaling3d",
+                label,
                 seed,
                 params,
                 cfg,
-                what=f"L0 = {L0:.3f} m, H0 = {H0:.3f} m",
+                what=f"L0 = {L0:.3f} m, H0 = {H0:.3f} m"
+                + ("" if side_mu is None else f", sidewall friction {side_mu:g}"),
                 dt=dt,
                 until=until,
                 frame_dt=frame_dt,
                 profile_times=[until],
             )
         )
+    estimate.announce(
+        name,
+        [(job.free_grains, job.steps) for job in jobs],
+        out=out,
+        progress=progress,
+        workers=cfg.workers,
+    )
     rows = []
     made = base.collapse_runs(jobs, cfg.workers, progress)
-    for (seed, a, L0, H0, bed), s in zip(cases, made, strict=True):
+    for (side_mu, seed, a, L0, H0, bed), s in zip(cases, made, strict=True):
         L0_measured = float(s.front[0])
         Lf = float(s.front[-1])
         Hf = float(np.max(s.profiles[-1]))
         # Still moving? The front's speed over the last 0.1 s, in diameters per second.
         k = max(0, len(s.times) - 1 - round(0.1 / frame_dt))
         speed = (s.front[-1] - s.front[k]) / max(s.times[-1] - s.times[k], frame_dt)
+        channel = (
+            {}
+            if side_mu is None
+            else {"side_mu": side_mu, "W_over_d": width_d, "W_over_H0": width_d * diameter / H0}
+        )
         rows.append(
             {
+                **channel,
                 "seed": seed,
                 "a": a,
                 "L0_m": L0,
@@ -159,22 +218,23 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             }
         )
     table = pd.DataFrame(rows)
-    fit_r = fit_two_power_laws(table.a, table.runout)
-    fit_h = fit_two_power_laws(table.a, 1.0 / table.Hf_over_H0)
-    for fit in (fit_r, fit_h):
-        fit["n_low"] = float(sum(a < fit["a_c"] for a in aspects))
-        fit["n_high"] = float(sum(a > fit["a_c"] for a in aspects))
-    fits = pd.DataFrame(
-        [
-            {"quantity": "(Lf - L0)/L0", **fit_r},
-            {"quantity": "H0/Hf", **fit_h},
-        ]
-    )
-    ensemble = base.ensemble(table, ["a"], ["runout", "Hf_over_H0"])
-    figures = [_figure(out / "runout_scaling.png", table, fit_r, fit_h, cfg.mu)]
+    by_channel = [(m, table if m is None else table[table.side_mu == m]) for m in channels]
+    fit_rows = []
+    for side_mu, sub in by_channel:
+        for quantity, y in (("(Lf - L0)/L0", sub.runout), ("H0/Hf", 1.0 / sub.Hf_over_H0)):
+            fit = fit_two_power_laws(sub.a, y)
+            fit["n_low"] = float(sum(a < fit["a_c"] for a in aspects))
+            fit["n_high"] = float(sum(a > fit["a_c"] for a in aspects))
+            head = {} if side_mu is None else {"side_mu": side_mu}
+            fit_rows.append({**head, "quantity": quantity, **fit})
+    fits = pd.DataFrame(fit_rows)
+    keys = ["a"] if dim == 2 else ["side_mu", "a"]
+    ensemble = base.ensemble(table, keys, ["runout", "Hf_over_H0"])
+    figures = [_figure(out / f"{name}.png", table, fits, cfg.mu, width_d)]
+    per_channel = "" if dim == 2 else " One pair of fits per sidewall friction `side_mu`."
     files = base.report.write_table(
         out,
-        "runout_scaling_fit",
+        f"{name}_fit",
         fits,
         title="Power-law fits of runout and height against aspect ratio",
         intro="`k_low`, `c_low`: `y = c a^k` for `a < a_c`; `k_high`, `c_high` above; "
@@ -183,41 +243,61 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "bound on the uncertainty); `n_low`, `n_high`: aspect ratios on each side; "
         "`p_two_laws`: p-value of the two laws against the one (F ratio, its null drawn "
         "with the split searched afresh; small: the bend is real). Every packing's point "
-        "is fitted.",
+        "is fitted." + per_channel,
     )
     files += base.report.write_table(
         out,
-        "runout_scaling_ensemble",
+        f"{name}_ensemble",
         ensemble,
         title="Runout and height against aspect ratio: mean and spread over the packings",
-        intro="Per aspect ratio, over the packings (`seeds`): mean and sample standard "
+        intro="Per aspect ratio"
+        + ("" if dim == 2 else " and sidewall friction")
+        + ", over the packings (`seeds`): mean and sample standard "
         "deviation (`_sd`) of the runout (Lf - L0)/L0 and of Hf/H0.",
     )
 
-    def law(fit: dict[str, float], side: str) -> str:
+    def law(fit: pd.Series, side: str) -> str:
         return f"a^({fit[f'k_{side}']:.2f} +- {fit[f'k_{side}_ci']:.2f})"
 
-    def bend(fit: dict[str, float], name: str) -> str:
+    def bend(fit: pd.Series, what: str) -> str:
         p = fit["p_two_laws"]
         if not math.isfinite(p):
-            return f"{name}, too few ratios to test"
+            return f"{what}, too few ratios to test"
         verdict = "a bend" if p < 0.05 else "no bend told from the scatter"
         floor = 1.0 / (1 + BEND_DRAWS)
-        return f"{name} p {'<= ' + format(floor, 'g') if p <= floor else f'= {p:.2g}'} ({verdict})"
+        return f"{what} p {'<= ' + format(floor, 'g') if p <= floor else f'= {p:.2g}'} ({verdict})"
 
-    summary = (
-        f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, mu = {cfg.mu:g}, "
-        f"{_grains(table)} discs), {len(aspects)} aspect "
-        f"ratios a = {', '.join(f'{a:g}' for a in aspects)}, {seeds} "
-        f"packing{'s' if seeds > 1 else ''} each, `{cfg.solver}` at tol {cfg.tol:g}. "
-        "Exponents with their 95 % intervals: runout (Lf - L0)/L0 ~ "
-        f"**{law(fit_r, 'low')} below a = {fit_r['a_c']:.2g} ({fit_r['n_low']:.0f} ratios), "
-        f"{law(fit_r, 'high')} above ({fit_r['n_high']:.0f})**; H0/Hf ~ **{law(fit_h, 'low')} "
-        f"below a = {fit_h['a_c']:.2g} ({fit_h['n_low']:.0f} ratios), {law(fit_h, 'high')} "
-        f"above ({fit_h['n_high']:.0f})**; one law through every point: runout "
-        f"{law(fit_r, 'all')}, H0/Hf {law(fit_h, 'all')}. Two laws against one: "
-        f"{bend(fit_r, 'runout')}; {bend(fit_h, 'H0/Hf')}. "
-        "Seed 001 quotes H0/Hf ~ a^0.69 in wide channels and a^0.5 in narrow ones, with a "
+    def laws(fit_r: pd.Series, fit_h: pd.Series) -> str:
+        return (
+            "Exponents with their 95 % intervals: runout (Lf - L0)/L0 ~ "
+            f"**{law(fit_r, 'low')} below a = {fit_r['a_c']:.2g} ({fit_r['n_low']:.0f} ratios), "
+            f"{law(fit_r, 'high')} above ({fit_r['n_high']:.0f})**; H0/Hf ~ "
+            f"**{law(fit_h, 'low')} below a = {fit_h['a_c']:.2g} ({fit_h['n_low']:.0f} ratios), "
+            f"{law(fit_h, 'high')} above ({fit_h['n_high']:.0f})**; one law through every "
+            f"point: runout {law(fit_r, 'all')}, H0/Hf {law(fit_h, 'all')}. Two laws against "
+            f"one: {bend(fit_r, 'runout')}; {bend(fit_h, 'H0/Hf')}."
+        )
+
+    packings = f"{seeds} packing{'s' if seeds > 1 else ''} each, `{cfg.solver}` at tol {cfg.tol:g}"
+    ratios = f"{len(aspects)} aspect ratios a = {', '.join(f'{a:g}' for a in aspects)}"
+    if dim == 2:
+        fit_r, fit_h = fits.iloc[0], fits.iloc[1]
+        summary = (
+            f"2D columns of area {area * 1e4:g} cm^2 (d = {diameter * 1e3:g} mm, "
+            f"mu = {cfg.mu:g}, {_grains(table)} discs), {ratios}, {packings}. " + laws(fit_r, fit_h)
+        )
+    else:
+        summary = (
+            f"3D columns of {area * 1e4:g} cm^2 along a channel W = {width_d:g} d wide "
+            f"(d = {diameter * 1e3:g} mm, grain and back-wall mu = {cfg.mu:g}, "
+            f"{_grains(table)} spheres), {ratios}, {packings}."
+        )
+        for side_mu, _ in by_channel:
+            chan = fits[fits.side_mu == side_mu]
+            kind = "frictionless sidewalls" if side_mu == 0 else f"sidewall friction {side_mu:g}"
+            summary += f" **{kind.capitalize()}**: " + laws(chan.iloc[0], chan.iloc[1])
+    summary += (
+        " Seed 001 quotes H0/Hf ~ a^0.69 in wide channels and a^0.5 in narrow ones, with a "
         "regime change near a = 7 in the wide one; 2D contact dynamics (Staron and Hinch "
         "2005) gives a runout linear in a at small a and growing as about a^(2/3) above a of "
         "about 3."
@@ -236,10 +316,16 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "second (0: at rest); `reached_end`: the front came within two diameters of the "
         "bed's end."
     )
+    if dim == 3:
+        intro += (
+            " `side_mu`: the sidewalls' friction; `W_over_d`, `W_over_H0`: the channel's "
+            "width in diameters and in column heights. Heights and fronts are the side "
+            "view: the highest grain across the width."
+        )
     base.finish(
         out,
-        "runout_scaling",
-        "Runout and height against aspect ratio (seed 001)",
+        name,
+        "Runout and height against aspect ratio (seed 001)" + ("" if dim == 2 else ", 3D channels"),
         table,
         intro,
         summary,
@@ -255,46 +341,60 @@ def _grains(table: pd.DataFrame) -> str:
     return f"{low}" if low == high else f"{low} to {high}"
 
 
-def _figure(
-    path: Path,
-    table: pd.DataFrame,
-    fit_r: dict[str, float],
-    fit_h: dict[str, float],
-    mu: float,
-) -> Path:
-    """Runout and H0/Hf against a: every packing's point, the mean +- sd, the fitted laws."""
+def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, width_d: float) -> Path:
+    """Runout and H0/Hf against a: every packing's point, the mean +- sd and the fitted
+    laws, per sidewall friction in 3D."""
     plt = base.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    a = table.a.to_numpy()
     table = table.assign(H0_over_Hf=1.0 / table.Hf_over_H0)
-    stats = table.groupby("a")[["runout", "H0_over_Hf"]].agg(["mean", "std"])
+    a = table.a.to_numpy()
     seeds = table.seed.nunique()
-    for ax, column, fit, label in (
-        (axes[0], "runout", fit_r, "(Lf - L0) / L0"),
-        (axes[1], "H0_over_Hf", fit_h, "H0 / Hf"),
-    ):
-        ax.loglog(a, table[column], ".", color="0.6", label="each packing")
-        ax.errorbar(
-            stats.index,
-            stats[column]["mean"],
-            yerr=stats[column]["std"].fillna(0.0),
-            fmt="o",
-            capsize=3,
-            label=f"mean +- sd ({seeds} packing{'s' if seeds > 1 else ''})",
-        )
-        if math.isfinite(fit["a_c"]):
-            lo = np.geomspace(a.min(), fit["a_c"], 20)
-            hi = np.geomspace(fit["a_c"], a.max(), 20)
-            ax.loglog(lo, fit["c_low"] * lo ** fit["k_low"], "-", label=f"a^{fit['k_low']:.2f}")
-            ax.loglog(hi, fit["c_high"] * hi ** fit["k_high"], "-", label=f"a^{fit['k_high']:.2f}")
-        ax.set_xlabel("a = H0 / L0")
-        ax.set_ylabel(label)
-        ax.grid(True, which="both", alpha=0.3)
+    three_d = "side_mu" in table
+    channels = sorted(set(table.side_mu)) if three_d else [None]
+    for i, side_mu in enumerate(channels):
+        sub = table if side_mu is None else table[table.side_mu == side_mu]
+        chan = fits if side_mu is None else fits[fits.side_mu == side_mu]
+        tag = "" if side_mu is None else f"sidewall mu {side_mu:g}: "
+        colour = f"C{2 * i}"
+        stats = sub.groupby("a")[["runout", "H0_over_Hf"]].agg(["mean", "std"])
+        for ax, column, fit, label in (
+            (axes[0], "runout", chan.iloc[0], "(Lf - L0) / L0"),
+            (axes[1], "H0_over_Hf", chan.iloc[1], "H0 / Hf"),
+        ):
+            ax.loglog(sub.a, sub[column], ".", color="0.6")
+            ax.errorbar(
+                stats.index,
+                stats[column]["mean"],
+                yerr=stats[column]["std"].fillna(0.0),
+                fmt="o",
+                color=colour,
+                capsize=3,
+                label=f"{tag}mean +- sd ({seeds} packing{'s' if seeds > 1 else ''})",
+            )
+            if math.isfinite(fit["a_c"]):
+                lo = np.geomspace(a.min(), fit["a_c"], 20)
+                hi = np.geomspace(fit["a_c"], a.max(), 20)
+                ax.loglog(lo, fit["c_low"] * lo ** fit["k_low"], "-", color=f"C{2 * i + 1}",
+                          label=f"{tag}a^{fit['k_low']:.2f}, a^{fit['k_high']:.2f}")  # fmt: skip
+                ax.loglog(hi, fit["c_high"] * hi ** fit["k_high"], "-", color=f"C{2 * i + 1}")
+            ax.set_xlabel("a = H0 / L0")
+            ax.set_ylabel(label)
+            ax.grid(True, which="both", alpha=0.3)
     ref = np.geomspace(a.min(), a.max(), 20)
-    axes[1].loglog(ref, (fit_h["c_all"]) * ref**0.69, "k:", label="a^0.69 (seed 001, wide)")
+    c_all = float(fits.iloc[1]["c_all"])
+    axes[1].loglog(ref, c_all * ref**0.69, "k:", label="a^0.69 (seed 001, wide)")
+    if three_d:
+        c_last = float(fits.iloc[-1]["c_all"])
+        axes[1].loglog(ref, c_last * ref**0.5, "k--", label="a^0.5 (seed 001, narrow)")
+    axes[0].plot([], [], ".", color="0.6", label="each packing")
     for ax in axes:
         ax.legend(fontsize="small")
-    fig.suptitle(f"2D collapses, {_grains(table)} discs, mu = {mu:g}")
+    if three_d:
+        fig.suptitle(
+            f"3D collapses, {_grains(table)} spheres, mu = {mu:g}, channel {width_d:g} d wide"
+        )
+    else:
+        fig.suptitle(f"2D collapses, {_grains(table)} discs, mu = {mu:g}")
     return base.save_figure(fig, path)
 
 
@@ -305,4 +405,12 @@ STUDY = register(
     help="Seed 001: runout and deposit height of 2D collapses against the aspect ratio.",
     outputs=("runout_scaling", "runout_scaling_fit"),
     aliases=("scaling",),
+)
+STUDY_3D = register(
+    "runout3d",
+    Settings3D,
+    run,
+    help="Seed 001: runout and deposit height of 3D collapses against the aspect ratio, "
+    "in a channel with frictionless sidewalls and in one with wall friction.",
+    outputs=("runout3d_scaling", "runout3d_scaling_fit"),
 )
