@@ -475,6 +475,12 @@ def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path
     angles = both.avalanche_deg
     assert ensemble.avalanche_deg[0.1] == pytest.approx(angles.mean())
     assert ensemble.avalanche_deg_sd[0.1] == pytest.approx(angles.std(ddof=1))
+    # Two at once: the packings are built first, one per process, then the sequences
+    # run on them; the same angles as one after another.
+    apart = avalanche(
+        mus=[0.1], seeds=2, workers=2, out=tmp_path / "apart", progress=_quiet([]), **kwargs
+    )
+    assert np.allclose(apart.sort_values("seed").avalanche_deg, both.sort_values("seed").avalanche_deg)
 
 
 def test_avalanche_in_3d_two_at_once_and_the_friction_for_a_target_angle(tmp_path):

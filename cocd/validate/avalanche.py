@@ -40,7 +40,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pandas as pd
@@ -51,6 +51,9 @@ from cocd.bench.study import option
 from cocd.errors import CocdError, SolverError
 from cocd.validate import _common as base
 from cocd.validate._common import RunSettings, register
+
+if TYPE_CHECKING:
+    from cocd.scene import Scene
 
 __all__ = ["STUDY", "STUDY_3D", "Settings", "Settings3D", "run", "surface_angle"]
 
@@ -254,6 +257,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         for job in jobs:
             keep(_sequence(job, progress))
     else:
+        # Each packing is built once, several at once, before the sequences that share
+        # it start (else two sequences of one new packing would both build it).
+        firsts = list({job.seed: job for job in jobs}.values())
+        if len(firsts) > 1:
+            base.run_apart(_build, firsts, min(workers, len(firsts)), progress)
         base.run_apart(
             _sequence, jobs, min(workers, len(jobs)), progress, on_done=lambda _, r: keep(r)
         )
@@ -407,12 +415,18 @@ def _sequence(
         raise CocdError(f"{job.label}: {exc}") from None
 
 
-def _tilt(
-    job: _Sequence, progress: Callable[[str], Any]
-) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+def _build(job: _Sequence, progress: Callable[[str], Any]) -> None:
+    """Build (or read from the cache) the packing of ``job``'s seed."""
+    try:
+        _box(job)
+    except CocdError as exc:
+        raise CocdError(f"{job.cfg.name}: packing {job.seed}: {exc}") from None
+
+
+def _box(job: _Sequence) -> Scene:
+    """The settled layer of ``job``'s seed with its friction (packings are cached)."""
     from cocd.builders import static_box
     from cocd.scene import Wall
-    from cocd.stepper import Stepper
 
     cfg, seed, mu = job.cfg, job.seed, job.mu
     scene = static_box(
@@ -430,6 +444,16 @@ def _tilt(
             Wall(w.point, w.normal, mu=cfg.side_mu) if abs(w.normal[1]) > 0.5 else w
             for w in scene.walls
         )
+    return scene
+
+
+def _tilt(
+    job: _Sequence, progress: Callable[[str], Any]
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    from cocd.stepper import Stepper
+
+    cfg, seed, mu = job.cfg, job.seed, job.mu
+    scene = _box(job)
     stepper = Stepper(scene, cfg.dt, solver=cfg.solver, tol=cfg.tol, fallback=cfg.fallback)
     trace: list[dict[str, Any]] = []
     tilt = cfg.start_deg
