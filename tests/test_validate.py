@@ -446,6 +446,38 @@ def test_runout3d_sidewall_friction_holds_the_column(tmp_path):
     assert not (tmp_path / "runout_scaling.csv").exists()  # kept apart from the 2D study
 
 
+def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
+    """Fig. 7 in small: a column of discs and one of spheres, on the flat and at 22
+    degrees. Both spread with time, further down the slope; run again, both are read
+    back."""
+    from cocd.validate import dims
+
+    kwargs = dict(
+        n2d=100, n3d=300, width=0.05, times=[0.1, 0.3], dt2d=2e-3, bed_length=0.6, tol=1e-4
+    )
+    table = dims.STUDY(out=tmp_path, progress=_quiet([]), **kwargs)
+    assert sorted(zip(table.slope_deg, table.t, strict=True)) == [
+        (0.0, 0.1), (0.0, 0.3), (22.0, 0.1), (22.0, 0.3)
+    ]  # fmt: skip
+    by = table.set_index(["slope_deg", "t"])
+    for dim in ("2d", "3d"):
+        front = by[f"front_{dim}_R0"]
+        assert front[0.0, 0.3] > front[0.0, 0.1] > 0.95  # from about R0, spreading
+        assert front[22.0, 0.3] > front[0.0, 0.3]  # further down the slope
+    assert np.allclose(table.front_ratio, table.front_2d_m / table.front_3d_m)
+    assert np.allclose(table.front_2d_R0 * dims.LENGTH, table.front_2d_m)
+    assert table.seed_front_ratio.isna().all()  # the seed's ratios are at t = 1 s
+    assert (table.n_2d == 100).all() and (table.n_3d == 300).all()
+    assert (table.steps_3d == 30).all()  # dt3d = 0.01 s to 0.3 s
+    summary = json.loads((tmp_path / "dims.meta.json").read_text())["summary"]
+    assert "Fronts at t = 0.3 s" in summary and "about 32 % at 22 deg" in summary
+    assert (tmp_path / "dims_profiles.png").stat().st_size > 0
+    lines: list[str] = []
+    again = dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
+    assert sum(line.endswith("(kept)") for line in lines) == 4
+    pd.testing.assert_frame_equal(again, table)
+
+
 def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path):
     from cocd.validate.avalanche import STUDY as avalanche
 
@@ -629,6 +661,9 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["runout", "--aspects", "1,1,1,1,1,1"], "at least 6 distinct aspect ratios"),
         (["runout3d", "--side-mus", "0,-0.1"], "side_mus must be numbers >= 0"),
         (["runout3d", "--width-d", "1"], "width_d must be at least 2 diameters"),
+        (["dims", "--slopes", "0,95"], "slopes must be in [0, 90)"),
+        (["dims", "--times", "0.405"], "do not fall on whole numbers of 3D steps"),
+        (["dims", "--bed-length", "0.1"], "bed_length must exceed"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
         (["avalanche", "--width-d", "8"], "width_d must be at least 12 diameters"),
         (["avalanche3d", "--length-d", "8"], "length_d must be at least 12 diameters"),
