@@ -96,9 +96,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     out = Path(out)
     jobs = []
     cases = []
+    # The short 2D runs first, then the 3D ones: with two workers, the two slopes at once.
     for seed in range(seeds):
-        for slope in slopes:
-            for dim, n, dt, frame_dt in ((2, n2d, dt2d, frame2d), (3, n3d, dt3d, frame3d)):
+        for dim, n, dt, frame_dt in ((2, n2d, dt2d, frame2d), (3, n3d, dt3d, frame3d)):
+            for slope in slopes:
                 params: dict[str, Any] = {
                     "dim": dim,
                     "n_grains": n,
