@@ -61,8 +61,10 @@ __all__ = [
     "RunConfig",
     "RunSection",
     "build_scene",
+    "builder_defaults",
     "load_config",
     "parse_config",
+    "same_params",
 ]
 
 #: The builders a scene file may name.
@@ -188,16 +190,41 @@ class RunConfig(BaseModel):
 
     def resolved(self) -> dict[str, Any]:
         """The configuration with every default filled in (builder defaults too), as JSON data."""
-        signature = inspect.signature(BUILDERS[self.builder])
-        params = {
-            name: p.default
-            for name, p in signature.parameters.items()
-            if p.default is not inspect.Parameter.empty
-        }
+        params = builder_defaults(self.builder)
         params.update(self.params)
         data = self.model_dump()
         data["params"] = params
         return json.loads(json.dumps(data, default=str))
+
+
+def builder_defaults(builder: str) -> dict[str, Any]:
+    """The keyword defaults of builder ``builder`` (JSON data; empty for an unknown one)."""
+    make = BUILDERS.get(builder)
+    if make is None:
+        return {}
+    signature = inspect.signature(make)
+    defaults = {
+        name: p.default
+        for name, p in signature.parameters.items()
+        if p.default is not inspect.Parameter.empty
+    }
+    return dict(json.loads(json.dumps(defaults, default=str)))
+
+
+def same_params(builder: str, old: dict[str, Any], new: dict[str, Any]) -> bool:
+    """Whether two resolved ``params`` of ``builder`` make the same scene.
+
+    A parameter that one side lacks counts as the builder's default: a run file or
+    kept measurement written before a builder gained a parameter (whose default keeps
+    the old scene) still matches the same scene resolved today.
+    """
+    defaults = builder_defaults(builder)
+    missing = object()
+    for key in set(old) | set(new):
+        a, b = old.get(key, defaults.get(key, missing)), new.get(key, defaults.get(key, missing))
+        if a is missing or b is missing or a != b:
+            return False
+    return True
 
 
 #: The scene of ``cocd run`` without a scene file: a small 2D column collapse.

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from cocd.config import RunConfig, build_scene
+from cocd.config import RunConfig, build_scene, same_params
 from cocd.io.runfile import RunFile, RunFileError, RunWriter
 from cocd.scene import Scene
 from cocd.stepper import StepRecord
@@ -162,7 +162,10 @@ def existing_run(path: Path) -> str:
 
 def _check_same(old: dict[str, Any], new: dict[str, Any], path: Path) -> None:
     """Refuse to resume a run file with another scene or other run parameters."""
-    if old.get("builder") != new.get("builder") or old.get("params") != new.get("params"):
+    builder = str(new.get("builder"))
+    if old.get("builder") != builder or not same_params(
+        builder, old.get("params") or {}, new.get("params") or {}
+    ):
         raise RunFileError(
             f"cannot resume {path}: it holds a run of another scene "
             f"({old.get('builder')} {old.get('params')})"

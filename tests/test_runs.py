@@ -383,3 +383,30 @@ def test_front_plot_over_an_erodible_bed_follows_the_flow_not_the_layer(tmp_path
     assert (np.diff(front) >= -1.01 * d).all()
     assert front[-1] > front[0] + d
     assert "erodible" in ax.get_title()
+
+
+def test_a_parameter_added_to_a_builder_keeps_older_runs_resumable(tmp_path):
+    """A run file written before its builder gained a parameter (whose default keeps the
+    old scene) still resumes; a value other than the default is another scene."""
+    import copy
+
+    from cocd.config import RunConfig
+    from cocd.runs import _check_same
+
+    config = RunConfig.model_validate(
+        {"builder": "column_collapse", "params": {"dim": 2, "n_grains": 30},
+         "run": {"dt": 1e-3, "steps": 2}}
+    )  # fmt: skip
+    new = config.resolved()
+    assert new["params"]["mu_side"] is None
+    old = copy.deepcopy(new)
+    del old["params"]["mu_side"]  # as written before column_collapse had mu_side
+    _check_same(old, new, tmp_path / "run.h5")
+    _check_same(new, old, tmp_path / "run.h5")
+    old["params"]["mu_side"] = 0.3
+    with pytest.raises(RunFileError, match="another scene"):
+        _check_same(old, new, tmp_path / "run.h5")
+    del old["params"]["mu_side"]
+    old["params"]["no_such_parameter"] = 1  # not a parameter of today's builder
+    with pytest.raises(RunFileError, match="another scene"):
+        _check_same(old, new, tmp_path / "run.h5")
