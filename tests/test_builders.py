@@ -85,6 +85,17 @@ def test_sidewall_friction_is_the_lateral_walls_own():
     assert scene.mu_wall == 0.3
 
 
+def test_sidewall_friction_does_not_change_a_rain_packing(packing_cache):
+    """Rain packings are deposited alike whatever the sidewalls' friction: the channels
+    of a comparison hold the same grains at the same places."""
+    kw = dict(n_grains=40, width=0.05, length=0.05, height=0.05, packing="rain")
+    smooth = column_collapse(3, mu_side=0.0, **kw)
+    rough = column_collapse(3, mu_side=0.5, **kw)
+    assert np.array_equal(smooth.positions, rough.positions)
+    assert sorted(w.mu for w in rough.walls if w.mu is not None) == [0.5, 0.5]
+    assert sorted(w.mu for w in smooth.walls if w.mu is not None) == [0.0, 0.0]
+
+
 def test_slope_tilts_gravity():
     scene = column_collapse(3, n_grains=100, slope_deg=22.0)
     a = np.radians(22.0)

@@ -318,10 +318,9 @@ def column_collapse(
     up[-1] = 1.0
     walls = [Wall(np.zeros(dim), up), Wall(np.zeros(dim), np.eye(dim)[0])]
     if dim == 3:
-        walls += [
-            Wall(np.zeros(3), (0.0, 1.0, 0.0), mu=mu_side),
-            Wall((0.0, chan, 0.0), (0.0, -1.0, 0.0), mu=mu_side),
-        ]
+        # Frictionless sidewalls or not, rain packings are deposited alike (mu_prep):
+        # mu_side is set on the finished scene's walls.
+        walls += [Wall(np.zeros(3), (0.0, 1.0, 0.0)), Wall((0.0, chan, 0.0), (0.0, -1.0, 0.0))]
     if erodible_thickness > 0.0:
         walls.append(Wall(bed_len * np.eye(dim)[0], -np.eye(dim)[0]))
     gate = Wall(length * np.eye(dim)[0], -np.eye(dim)[0])
@@ -382,6 +381,9 @@ def column_collapse(
     all_r = np.concatenate(parts_r)
     fixed = np.zeros(len(all_r), dtype=bool)
     fixed[groups["bed"]] = True
+    if mu_side is not None:  # 3D: the lateral walls, whose normal is along y
+        walls = [Wall(w.point, w.normal, mu=mu_side) if abs(w.normal[1]) > 0.5 else w
+                 for w in walls]  # fmt: skip
     a = np.radians(slope_deg)
     gravity = np.zeros(dim)
     gravity[0], gravity[-1] = G * np.sin(a), -G * np.cos(a)

@@ -262,6 +262,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         firsts = list({job.seed: job for job in jobs}.values())
         if len(firsts) > 1:
             base.run_apart(_build, firsts, min(workers, len(firsts)), progress)
+        else:
+            _build(firsts[0], progress)
         base.run_apart(
             _sequence, jobs, min(workers, len(jobs)), progress, on_done=lambda _, r: keep(r)
         )

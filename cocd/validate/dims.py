@@ -169,12 +169,20 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 )
     table = pd.DataFrame(rows)
     figure = _figure(out / "dims_profiles.png", made, seeds, slopes, times, cfg.mu, width)
-    last = table[table.t == times[-1]]
+    ensemble = base.ensemble(
+        table, ["slope_deg", "t"], ["front_2d_R0", "front_3d_R0", "front_ratio"]
+    )
+    last = ensemble[ensemble.t == times[-1]]
+    seed_ratio = {slope: SEED_FRONT_RATIO.get(slope, math.nan) for slope in slopes}
     said = "; ".join(
-        f"{r.slope_deg:g} deg: 2D {r.front_2d_R0:.2f} R0, 3D {r.front_3d_R0:.2f} R0, ratio "
-        f"{r.front_ratio:.3f}"
-        + (f" (seed {r.seed_front_ratio:.2f})" if math.isfinite(r.seed_front_ratio) else "")
-        for r in last.itertuples()
+        f"{r['slope_deg']:g} deg: 2D {base.pm(r, 'front_2d_R0', 2)} R0, 3D "
+        f"{base.pm(r, 'front_3d_R0', 2)} R0, ratio {base.pm(r, 'front_ratio', 3)}"
+        + (
+            f" (seed {seed_ratio[r['slope_deg']]:.2f})"
+            if times[-1] == 1.0 and math.isfinite(seed_ratio[r["slope_deg"]])
+            else ""
+        )
+        for r in last.to_dict("records")
     )
     summary = (
         f"The seed's column (R0 x H0 = {LENGTH * 100:g} x {HEIGHT * 100:g} cm, mu = {cfg.mu:g}, "
@@ -190,9 +198,17 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"{LENGTH:g} m; `front_ratio` = 2D / 3D; `seed_front_ratio`: the seed's at t = 1 s; "
         "`s_per_step_3d`: detection, set-up and solve per 3D step."
     )
+    files = base.report.write_table(
+        out,
+        "dims_ensemble",
+        ensemble,
+        title="The same collapse in 2D and in 3D: mean and spread over the packings",
+        intro="Per slope and time, over the packings (`seeds`): mean and sample standard "
+        "deviation (`_sd`, empty for one packing) of the fronts in R0 and of their ratio.",
+    )
     base.finish(
         out, "dims", "The same collapse in 2D and in 3D (Fig. 7)", table, intro, summary,
-        [figure], progress,
+        [figure, *files], progress,
     )  # fmt: skip
     return table
 

@@ -92,8 +92,9 @@ class Settings3D(Settings):
     diameter: float = option(0.005, "Mean grain diameter (m).")
     mu: float = option(
         0.25,
-        "Friction coefficient of the grains and of the back wall (0.25: the grain friction "
-        "whose avalanche angle in 3D is seed 001's 23.7 degrees, cocd validate avalanche3d).",
+        "Friction coefficient of the grains and of the back wall (0.25: layers of these "
+        "spheres avalanche at 24.5 +- 0.8 degrees in cocd validate avalanche3d, inside seed "
+        "001's 23.7 +- 1 for its beads).",
     )
     width_d: float = option(6.0, "Channel width W, in mean diameters.")
     side_mus: tuple[float, ...] = option(
@@ -380,12 +381,18 @@ def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, widt
             ax.set_xlabel("a = H0 / L0")
             ax.set_ylabel(label)
             ax.grid(True, which="both", alpha=0.3)
+    # Seed 001's laws of H0/Hf, through the fitted prefactor of the smoothest channel
+    # (wide) and of the roughest (narrow).
     ref = np.geomspace(a.min(), a.max(), 20)
-    c_all = float(fits.iloc[1]["c_all"])
-    axes[1].loglog(ref, c_all * ref**0.69, "k:", label="a^0.69 (seed 001, wide)")
+    heights = fits[fits.quantity == "H0/Hf"]
     if three_d:
-        c_last = float(fits.iloc[-1]["c_all"])
-        axes[1].loglog(ref, c_last * ref**0.5, "k--", label="a^0.5 (seed 001, narrow)")
+        heights = heights.sort_values("side_mu")
+    if not three_d or heights.iloc[0]["side_mu"] == 0:
+        axes[1].loglog(ref, float(heights.iloc[0]["c_all"]) * ref**0.69, "k:",
+                       label="a^0.69 (seed 001, wide)")  # fmt: skip
+    if three_d and heights.iloc[-1]["side_mu"] > 0:
+        axes[1].loglog(ref, float(heights.iloc[-1]["c_all"]) * ref**0.5, "k--",
+                       label="a^0.5 (seed 001, narrow)")  # fmt: skip
     axes[0].plot([], [], ".", color="0.6", label="each packing")
     for ax in axes:
         ax.legend(fontsize="small")
