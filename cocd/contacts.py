@@ -232,37 +232,63 @@ def _candidate_pairs(
 ) -> tuple[IntArray, IntArray]:
     """Grain pairs ``i < j`` that may be closer than their threshold (a superset).
 
-    A pair's margin is at most ``b_i + b_j`` with ``b = skin dt |v - v_ref| + reach``
-    (``v_ref``: the median free velocity), so one search with the common bound
-    of most grains finds their pairs, and the few grains faster than that are
-    searched around one by one, each within its own bound.
+    Among free grains, a pair's margin is at most ``b_i + b_j`` with
+    ``b = skin dt |v - v_ref| + reach`` (``v_ref``: the median free velocity), so one
+    search with the common bound of most grains finds their pairs, and the few
+    grains faster than that are searched around one by one, each within its own
+    bound. A fixed grain does not move: its pairs with free grains are searched
+    apart, each free grain within its own margin ``skin dt |v| + reach``, so that a
+    bed of fixed grains under a falling column (whose speeds differ from the
+    median by the whole fall) does not widen every search. Pairs of two fixed
+    grains are not searched.
     """
     x, r = scene.positions, scene.radii
     n = x.shape[0]
-    b = extra.copy()
-    if v is not None:
-        free = scene.free
-        ref = np.median(v[free], axis=0) if free.any() else np.zeros(x.shape[1])
-        b += skin_dt * np.linalg.norm(v - ref, axis=1)
+    free = np.flatnonzero(~scene.fixed).astype(np.int64)
+    still = np.flatnonzero(scene.fixed).astype(np.int64)
+    keys = [np.zeros(0, np.int64)]
+    if free.size > 1:
+        b = extra[free].copy()
+        if v is not None:
+            ref = np.median(v[free], axis=0)
+            b += skin_dt * np.linalg.norm(v[free] - ref, axis=1)
+        keys.append(_pairs_among(x[free], r[free], b, d_max, free, n))
+    if free.size and still.size:
+        margin = extra[free] + (0.0 if v is None else skin_dt * np.linalg.norm(v[free], axis=1))
+        reach = r[free] + float(r[still].max()) + d_max + margin + float(extra[still].max())
+        found = KDTree(x[still]).query_ball_point(x[free], reach)
+        counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=free.size)
+        if counts.sum():
+            others = still[np.concatenate([np.asarray(f, dtype=np.int64) for f in found])]
+            mine = np.repeat(free, counts)
+            lo, hi = np.minimum(mine, others), np.maximum(mine, others)
+            keys.append(lo * np.int64(n) + hi)
+    merged = np.unique(np.concatenate(keys))
+    return merged // n, merged % n
+
+
+def _pairs_among(
+    x: FloatArray, r: FloatArray, b: FloatArray, d_max: float, index: IntArray, n: int
+) -> IntArray:
+    """Keys ``i n + j`` (``i < j``, global indices ``index``) of the pairs of these grains
+    closer than ``r_i + r_j + d_max + b_i + b_j``, or a few more."""
     r_max = float(r.max())
     common = float(np.quantile(b, 0.95)) if b.any() else 0.0
     tree = KDTree(x)
     pairs = tree.query_pairs(2.0 * r_max + d_max + 2.0 * common, output_type="ndarray")
-    i, j = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
+    lo, hi = index[pairs[:, 0]], index[pairs[:, 1]]
+    parts = [np.minimum(lo, hi) * np.int64(n) + np.maximum(lo, hi)]
     fast = np.flatnonzero(b > common)
     if fast.size:
         found = tree.query_ball_point(x[fast], r[fast] + r_max + d_max + 2.0 * b[fast])
         counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=fast.size)
         if counts.sum():
-            others = np.concatenate([np.asarray(f, dtype=np.int64) for f in found])
-            centre = np.repeat(fast, counts)
-            lo, hi = np.minimum(centre, others), np.maximum(centre, others)
-            keep = lo != hi
-            keys = np.unique(
-                np.concatenate([i * np.int64(n) + j, lo[keep] * np.int64(n) + hi[keep]])
-            )
-            i, j = keys // n, keys % n
-    return i, j
+            others = index[np.concatenate([np.asarray(f, dtype=np.int64) for f in found])]
+            centre = np.repeat(index[fast], counts)
+            keep = centre != others
+            low, high = np.minimum(centre, others)[keep], np.maximum(centre, others)[keep]
+            parts.append(low * np.int64(n) + high)
+    return np.concatenate(parts)
 
 
 @dataclass(frozen=True)
