@@ -387,6 +387,10 @@ def test_runout_grows_with_the_aspect_ratio(tmp_path):
     assert np.all(np.diff(1.0 / table.Hf_over_H0) > 0.0)
     assert not table.reached_end.any()
     assert (table.front_speed_end_d_per_s < 1.0).all()  # at rest at the end
+    # Heights over the column as built, whose ratio is near the one asked.
+    assert np.allclose(table.Hf_over_H0, table.Hf_m / table.H0_built_m)
+    assert np.allclose(table.a_built, table.H0_built_m / table.L0_built_m)
+    assert np.all(np.abs(np.log(table.a_built / table.a)) < np.log(2.0))
     fits = pd.read_csv(tmp_path / "runout_scaling_fit.csv").set_index("quantity")
     fit = fits.loc["(Lf - L0)/L0"]
     assert fit.k_all > 0.5 and 0.0 < fit.k_all_ci < 1.0
@@ -406,6 +410,7 @@ def test_runout3d_sidewall_friction_holds_the_column(tmp_path):
     from cocd.validate import runout
 
     aspects = [0.5, 0.7, 1.0, 1.4, 2.0, 4.0]
+    lines: list[str] = []
     table = runout.STUDY_3D(
         aspects=aspects,
         area=0.004,
@@ -417,7 +422,7 @@ def test_runout3d_sidewall_friction_holds_the_column(tmp_path):
         min_time=0.5,
         tol=1e-4,
         out=tmp_path,
-        progress=_quiet([]),
+        progress=lines.append,
     )
     assert sorted(set(table.side_mu)) == [0.0, 0.5]
     assert (table.W_over_d == 3.0).all()
@@ -441,8 +446,16 @@ def test_runout3d_sidewall_friction_holds_the_column(tmp_path):
     assert sorted(zip(fits.side_mu, fits.quantity, strict=True)) == [
         (m, q) for m in (0.0, 0.5) for q in ("(Lf - L0)/L0", "H0/Hf")
     ]
+    # Four grains along the column at a = 1 and at 1.4: the lattice builds one column for
+    # both, run and fitted once per channel, at its built ratio.
+    same = [line for line in lines if "builds the same column as a = 1 " in line]
+    assert len(same) == 2 and all(line.startswith("runout3d_scaling: a = 1.4") for line in same)
+    assert 1.4 not in set(table.a)
+    for side_mu in (0.0, 0.5):
+        built = table[table.side_mu == side_mu].sort_values("a").a_built
+        assert np.all(np.diff(built) > 0.0)
     ensemble = pd.read_csv(tmp_path / "runout3d_scaling_ensemble.csv")
-    assert len(ensemble) == 2 * len(aspects)
+    assert len(ensemble) == 2 * (len(aspects) - 1)
     summary = json.loads((tmp_path / "runout3d_scaling.meta.json").read_text())["summary"]
     for side_mu, name in ((0.0, "Frictionless sidewalls"), (0.5, "Sidewall friction 0.5")):
         fit = fits[(fits.side_mu == side_mu) & (fits.quantity == "H0/Hf")].iloc[0]

@@ -84,8 +84,10 @@ class Settings3D(Settings):
     solver: str = option("apgd", "Convex backend of the COCD runs.")
     tol: float = option(1e-5, "Tolerance of the convex backend.")
     aspects: tuple[float, ...] = option(
-        (1.0, 1.4, 1.9, 2.7, 3.8, 5.3, 7.4, 10.0, 14.0, 20.0),
-        "Aspect ratios H0/L0 (seed 001: logarithmically from 1 to 20).",
+        (1.0, 1.4, 1.9, 2.7, 3.8, 5.3, 6.3, 7.4, 10.0, 14.0),
+        "Aspect ratios H0/L0 asked (seed 001: logarithmically from 1 to 20). The lattice "
+        "holds whole grains along the column: at the default size these build ten "
+        "distinct columns, of ratios 1.2 to 25.",
         kind="floats",
     )
     area: float = option(0.01, "Column cross-section L0 H0 along the channel (m^2).")
@@ -138,6 +140,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     frame_dt = base.frame_interval([0.01], [dt])
     cases = []
     jobs = []
+    built: dict[tuple[Any, ...], float] = {}
     # Channel by channel, then packing by packing: a channel's laws are complete first.
     for side_mu, seed, a in (
         (m, seed, a) for m in channels for seed in range(seeds) for a in aspects
@@ -161,7 +164,19 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         if side_mu is not None:
             params.update(width=width_d * diameter, mu_side=side_mu)
             label += f"_W{width_d:g}d_side{side_mu:g}"
-        cases.append((side_mu, seed, a, L0, H0, bed))
+        # The lattice holds a whole number of grains along the column: two ratios can
+        # build the same column, which is run and fitted once, at its built ratio.
+        L_built, H_built = _built_column(base.seed_params(params, seed))
+        same = (side_mu, seed, round(L_built / diameter, 6), round(H_built / diameter, 6))
+        if same in built:
+            progress(
+                f"{name}: a = {a:g} builds the same column as a = {built[same]:g} "
+                f"({L_built / diameter:.1f} x {H_built / diameter:.1f} diameters, "
+                f"a = {H_built / L_built:.3g} as built): run once"
+            )
+            continue
+        built[same] = a
+        cases.append((side_mu, seed, a, L0, H0, bed, L_built, H_built))
         jobs.append(
             base.collapse_job(
                 out,
@@ -187,7 +202,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     )
     rows = []
     made = base.collapse_runs(jobs, cfg.workers, progress)
-    for (side_mu, seed, a, L0, H0, bed), s in zip(cases, made, strict=True):
+    for (side_mu, seed, a, L0, H0, bed, L_built, H_built), s in zip(cases, made, strict=True):
         L0_measured = float(s.front[0])
         Lf = float(s.front[-1])
         Hf = float(np.max(s.profiles[-1]))
@@ -206,12 +221,15 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 "a": a,
                 "L0_m": L0,
                 "H0_m": H0,
+                "a_built": H_built / L_built,
+                "L0_built_m": L_built,
+                "H0_built_m": H_built,
                 "n_grains": s.n_grains,
                 "t_end": round(float(s.times[-1]), 9),
                 "Lf_m": Lf,
                 "runout": (Lf - L0_measured) / L0_measured,
                 "Hf_m": Hf,
-                "Hf_over_H0": Hf / H0,
+                "Hf_over_H0": Hf / H_built,
                 "front_speed_end_d_per_s": speed / s.d_mean,
                 "reached_end": bool(np.max(s.front) >= bed - 2.0 * s.d_mean),
                 "penetration_max": s.penetration_max,
@@ -222,15 +240,19 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     by_channel = [(m, table if m is None else table[table.side_mu == m]) for m in channels]
     fit_rows = []
     for side_mu, sub in by_channel:
+        ratios = sub.groupby("a").a_built.mean()  # one per asked ratio: its columns' mean
+        # Built ratios to 3 digits: packings of one column differ by their largest grain
+        # (parts per 10 000), which must not count as distinct ratios in the fit.
+        built_a = sub.a_built.map(lambda v: float(f"{v:.3g}"))
         for quantity, y in (("(Lf - L0)/L0", sub.runout), ("H0/Hf", 1.0 / sub.Hf_over_H0)):
-            fit = fit_two_power_laws(sub.a, y)
-            fit["n_low"] = float(sum(a < fit["a_c"] for a in aspects))
-            fit["n_high"] = float(sum(a > fit["a_c"] for a in aspects))
+            fit = fit_two_power_laws(built_a, y)
+            fit["n_low"] = float((ratios < fit["a_c"]).sum())
+            fit["n_high"] = float((ratios > fit["a_c"]).sum())
             head = {} if side_mu is None else {"side_mu": side_mu}
             fit_rows.append({**head, "quantity": quantity, **fit})
     fits = pd.DataFrame(fit_rows)
     keys = ["a"] if dim == 2 else ["side_mu", "a"]
-    ensemble = base.ensemble(table, keys, ["runout", "Hf_over_H0"])
+    ensemble = base.ensemble(table, keys, ["a_built", "runout", "Hf_over_H0"])
     figures = [_figure(out / f"{name}.png", table, fits, cfg.mu, width_d)]
     per_channel = "" if dim == 2 else " One pair of fits per sidewall friction `side_mu`."
     files = base.report.write_table(
@@ -239,6 +261,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         fits,
         title="Power-law fits of runout and height against aspect ratio",
         intro="`k_low`, `c_low`: `y = c a^k` for `a < a_c`; `k_high`, `c_high` above; "
+        "fitted against the built ratio `a_built`; "
         "`k_all`: one law through every point; `k_*_ci`: half-width of the exponent's 95 % "
         "confidence interval (points taken as independent and the split as given: a lower "
         "bound on the uncertainty); `n_low`, `n_high`: aspect ratios on each side; "
@@ -251,10 +274,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"{name}_ensemble",
         ensemble,
         title="Runout and height against aspect ratio: mean and spread over the packings",
-        intro="Per aspect ratio"
+        intro="Per aspect ratio asked"
         + ("" if dim == 2 else " and sidewall friction")
         + ", over the packings (`seeds`): mean and sample standard "
-        "deviation (`_sd`) of the runout (Lf - L0)/L0 and of Hf/H0.",
+        "deviation (`_sd`) of the built ratio `a_built`, of the runout (Lf - L0)/L0 and of "
+        "Hf/H0.",
     )
 
     def law(fit: pd.Series, side: str) -> str:
@@ -280,7 +304,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         )
 
     packings = f"{seeds} packing{'s' if seeds > 1 else ''} each, `{cfg.solver}` at tol {cfg.tol:g}"
-    ratios = f"{len(aspects)} aspect ratios a = {', '.join(f'{a:g}' for a in aspects)}"
+    kinds = table.groupby("a").a_built.mean()
+    ratios = (
+        f"{len(kinds)} aspect ratios a = {', '.join(f'{a:.3g}' for a in kinds)} as built "
+        f"(asked: {', '.join(f'{a:g}' for a in kinds.index)})"
+    )
     if dim == 2:
         fit_r, fit_h = fits.iloc[0], fits.iloc[1]
         summary = (
@@ -311,8 +339,12 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             + "."
         )
     intro = (
+        "`a`, `L0_m`, `H0_m`: the column asked; `a_built`, `L0_built_m`, `H0_built_m`: the "
+        "column the lattice holds (a whole number of grains along it), against which the "
+        "laws are fitted; "
         "`runout` = (Lf - L0)/L0 with the fronts of :func:`cocd.measure.surface_front` from "
-        "the back wall; `Hf_m`: the deposit's highest point above the bed; "
+        "the back wall; `Hf_m`: the deposit's highest point above the bed, `Hf_over_H0` "
+        "over the built height; "
         "`front_speed_end_d_per_s`: the front's speed over the last 0.1 s, in diameters per "
         "second (0: at rest); `reached_end`: the front came within two diameters of the "
         "bed's end."
@@ -336,6 +368,20 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     return table
 
 
+def _built_column(params: dict[str, Any]) -> tuple[float, float]:
+    """Length and height (m) of the column :func:`cocd.builders.column_collapse` builds
+    with ``params``: its grains' reach from the back wall, and above the bed's top."""
+    from cocd.builders import column_collapse
+
+    kw = dict(params)
+    scene = column_collapse(kw.pop("dim"), **kw)
+    x, r = scene.positions, scene.radii
+    column, bed = scene.groups["column"], scene.groups["bed"]
+    base = float(np.max(x[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
+    length = float(np.max(x[column, 0] + r[column]))
+    return length, float(np.max(x[column, -1] + r[column])) - base
+
+
 def _grains(table: pd.DataFrame) -> str:
     """The columns' grain count, or its range."""
     low, high = int(table.n_grains.min()), int(table.n_grains.max())
@@ -348,7 +394,7 @@ def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, widt
     plt = base.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     table = table.assign(H0_over_Hf=1.0 / table.Hf_over_H0)
-    a = table.a.to_numpy()
+    a = table.a_built.to_numpy()
     seeds = table.seed.nunique()
     three_d = "side_mu" in table
     channels = sorted(set(table.side_mu)) if three_d else [None]
@@ -357,14 +403,14 @@ def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, widt
         chan = fits if side_mu is None else fits[fits.side_mu == side_mu]
         tag = "" if side_mu is None else f"sidewall mu {side_mu:g}: "
         colour = f"C{2 * i}"
-        stats = sub.groupby("a")[["runout", "H0_over_Hf"]].agg(["mean", "std"])
+        stats = sub.groupby("a")[["a_built", "runout", "H0_over_Hf"]].agg(["mean", "std"])
         for ax, column, fit, label in (
             (axes[0], "runout", chan.iloc[0], "(Lf - L0) / L0"),
             (axes[1], "H0_over_Hf", chan.iloc[1], "H0 / Hf"),
         ):
-            ax.loglog(sub.a, sub[column], ".", color="0.6")
+            ax.loglog(sub.a_built, sub[column], ".", color="0.6")
             ax.errorbar(
-                stats.index,
+                stats["a_built"]["mean"],
                 stats[column]["mean"],
                 yerr=stats[column]["std"].fillna(0.0),
                 fmt="o",
@@ -378,7 +424,7 @@ def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, widt
                 ax.loglog(lo, fit["c_low"] * lo ** fit["k_low"], "-", color=f"C{2 * i + 1}",
                           label=f"{tag}a^{fit['k_low']:.2f}, a^{fit['k_high']:.2f}")  # fmt: skip
                 ax.loglog(hi, fit["c_high"] * hi ** fit["k_high"], "-", color=f"C{2 * i + 1}")
-            ax.set_xlabel("a = H0 / L0")
+            ax.set_xlabel("a = H0 / L0, as built")
             ax.set_ylabel(label)
             ax.grid(True, which="both", alpha=0.3)
     # Seed 001's laws of H0/Hf, through the fitted prefactor of the smoothest channel
