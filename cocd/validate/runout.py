@@ -391,6 +391,8 @@ def _grains(table: pd.DataFrame) -> str:
 def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, width_d: float) -> Path:
     """Runout and H0/Hf against a: every packing's point, the mean +- sd and the fitted
     laws, per sidewall friction in 3D."""
+    from matplotlib.ticker import NullFormatter, ScalarFormatter
+
     plt = base.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     table = table.assign(H0_over_Hf=1.0 / table.Hf_over_H0)
@@ -425,6 +427,7 @@ def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, widt
                           label=f"{tag}a^{fit['k_low']:.2f}, a^{fit['k_high']:.2f}")  # fmt: skip
                 ax.loglog(hi, fit["c_high"] * hi ** fit["k_high"], "-", color=f"C{2 * i + 1}")
             ax.set_xlabel("a = H0 / L0, as built")
+
             ax.set_ylabel(label)
             ax.grid(True, which="both", alpha=0.3)
     # Seed 001's laws of H0/Hf, through the fitted prefactor of the smoothest channel
@@ -442,6 +445,8 @@ def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, widt
     axes[0].plot([], [], ".", color="0.6", label="each packing")
     for ax in axes:
         ax.legend(fontsize="small")
+        ax.xaxis.set_major_formatter(ScalarFormatter())  # 1, 10: no minor labels
+        ax.xaxis.set_minor_formatter(NullFormatter())
     if three_d:
         fig.suptitle(
             f"3D collapses, {_grains(table)} spheres, mu = {mu:g}, channel {width_d:g} d wide"
