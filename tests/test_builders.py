@@ -163,6 +163,23 @@ def test_static_box_2d():
     assert scene.n_grains == 100 and len(scene.walls) == 3
     with pytest.raises(SceneError, match="length is for a 3D box"):
         static_box(2, n_grains=100, diameter=0.01, length=0.3)
+    with pytest.raises(SceneError, match="mu_side"):
+        static_box(2, n_grains=100, diameter=0.01, mu_side=0.2)
+
+
+def test_static_box_sidewall_friction(packing_cache):
+    """mu_side sets the box's two y walls after deposition, as column_collapse does:
+    the grains are where they are without it, the floor and end walls keep mu_wall."""
+    kw = dict(n_grains=60, diameter=0.01, width=0.04, length=0.08, mu_wall=0.3)
+    plain = static_box(3, **kw)
+    rough = static_box(3, mu_side=0.23, **kw)
+    assert np.array_equal(plain.positions, rough.positions)
+    assert all(w.mu is None for w in plain.walls)
+    side = [abs(w.normal[1]) > 0.5 for w in rough.walls]
+    assert [w.mu for w, s in zip(rough.walls, side, strict=True) if s] == [0.23, 0.23]
+    assert all(w.mu is None for w, s in zip(rough.walls, side, strict=True) if not s)
+    with pytest.raises(SceneError, match="mu_side"):
+        static_box(3, mu_side=-0.1, **kw)
 
 
 def test_static_box_3d_long():

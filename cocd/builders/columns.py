@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from cocd.builders._common import (
@@ -273,10 +275,7 @@ def column_collapse(
     height = positive_number(height, "height")
     if dim == 2 and width is not None:
         raise SceneError("width is the 3D channel width; leave it None in 2D")
-    if mu_side is not None:
-        if dim == 2:
-            raise SceneError("mu_side is the 3D sidewalls' friction; leave it None in 2D")
-        mu_side = friction_coefficient(mu_side, "mu_side")
+    mu_side = _check_mu_side(dim, mu_side)
     chan = positive_number(0.20 if width is None else width, "width")
     if not (np.isfinite(slope_deg) and -90.0 < slope_deg < 90.0):
         raise SceneError(f"slope_deg must be in (-90, 90), got {slope_deg}")
@@ -381,9 +380,7 @@ def column_collapse(
     all_r = np.concatenate(parts_r)
     fixed = np.zeros(len(all_r), dtype=bool)
     fixed[groups["bed"]] = True
-    if mu_side is not None:  # 3D: the lateral walls, whose normal is along y
-        walls = [Wall(w.point, w.normal, mu=mu_side) if abs(w.normal[1]) > 0.5 else w
-                 for w in walls]  # fmt: skip
+    walls = side_friction(walls, mu_side)
     a = np.radians(slope_deg)
     gravity = np.zeros(dim)
     gravity[0], gravity[-1] = G * np.sin(a), -G * np.cos(a)
@@ -412,6 +409,7 @@ def static_box(
     mu: float = 0.3,
     mu_wall: float | None = None,
     mu_prep: float = 0.0,
+    mu_side: float | None = None,
     seed: int = 0,
     solver: str | None = None,
     cache: bool = True,
@@ -435,6 +433,9 @@ def static_box(
         As in :func:`column_collapse`.
     mu_prep : float
         Friction during deposition (0: compact, > 0: loose); ``mu`` is set after.
+    mu_side : float, optional
+        3D only: the friction of the two walls normal to y (a channel's sidewalls),
+        set after deposition as in :func:`column_collapse`; default ``mu_wall``.
     seed : int
     solver : str, optional
         Backend of the deposition; default as in :func:`column_collapse`.
@@ -460,6 +461,7 @@ def static_box(
         raise SceneError("length is for a 3D box (in 2D the box is width long)")
     horizontal = np.array([box] if dim == 2 else [box if length is None else length, box])
     horizontal[0] = positive_number(float(horizontal[0]), "length")
+    mu_side = _check_mu_side(dim, mu_side)
     rng = np.random.default_rng(seed)
     radii = uniform_radii(n, d_mean, poly, rng)
     if horizontal.min() < 2.2 * float(radii.max()):
@@ -471,7 +473,26 @@ def static_box(
     walls = box_walls(dim, horizontal)
     scene_kw = dict(density=density, mu=mu, mu_wall=mu_wall)
     settled = deposit([positions], [radii], 0, walls, scene_kw, mu_prep, solver, cache)
+    walls = side_friction(walls, mu_side)
     return Scene(settled, radii, walls=walls, **scene_kw)  # type: ignore[arg-type]
+
+
+def _check_mu_side(dim: int, mu_side: float | None) -> float | None:
+    if mu_side is None:
+        return None
+    if dim != 3:
+        raise SceneError("mu_side is the 3D sidewalls' friction; leave it None in 2D")
+    return friction_coefficient(mu_side, "mu_side")
+
+
+def side_friction(walls: Sequence[Wall], mu_side: float | None) -> list[Wall]:
+    """``walls`` with friction ``mu_side`` on those whose normal is along y.
+
+    In 3D these are a channel's two sidewalls; ``None`` leaves every wall as it is.
+    """
+    if mu_side is None:
+        return list(walls)
+    return [Wall(w.point, w.normal, mu=mu_side) if abs(w.normal[1]) > 0.5 else w for w in walls]
 
 
 def grain_groups(scene: Scene) -> dict[str, slice]:

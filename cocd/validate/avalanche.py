@@ -428,25 +428,18 @@ def _build(job: _Sequence, progress: Callable[[str], Any]) -> None:
 def _box(job: _Sequence) -> Scene:
     """The settled layer of ``job``'s seed with its friction (packings are cached)."""
     from cocd.builders import static_box
-    from cocd.scene import Wall
 
     cfg, seed, mu = job.cfg, job.seed, job.mu
-    scene = static_box(
+    return static_box(
         cfg.dim,
         n_grains=cfg.n,
         diameter=cfg.diameter,
         width=cfg.width_d * cfg.diameter,
         length=cfg.length_d * cfg.diameter if isinstance(cfg, Settings3D) else None,
         mu=mu,
+        mu_side=cfg.side_mu if isinstance(cfg, Settings3D) else None,
         seed=seed,
     )
-    if isinstance(cfg, Settings3D):
-        # The walls whose normal is along y: the channel's sidewalls, with their own friction.
-        scene.walls = tuple(
-            Wall(w.point, w.normal, mu=cfg.side_mu) if abs(w.normal[1]) > 0.5 else w
-            for w in scene.walls
-        )
-    return scene
 
 
 def _tilt(
