@@ -134,6 +134,7 @@ class CollapseJob:
     solver_options: dict[str, Any] | None = None
     bin_width: float | None = None
     x_max: float | None = None
+    n_free: int | None = None
 
     @property
     def steps(self) -> float:
@@ -142,9 +143,12 @@ class CollapseJob:
     @cached_property
     def free_grains(self) -> int:
         """Free grains of the run's scene, a bed layer's with the column's: the size of
-        its step problems, which sets what a step costs."""
+        its step problems, which sets what a step costs (``n_free`` when the caller has
+        built the scene already)."""
         from cocd.builders import column_collapse
 
+        if self.n_free is not None:
+            return self.n_free
         params = dict(self.params)
         return int(column_collapse(params.pop("dim"), **params).n_free)
 
@@ -166,6 +170,7 @@ def collapse_job(
     solver_options: dict[str, Any] | None = None,
     bin_width: float | None = None,
     x_max: float | None = None,
+    n_free: int | None = None,
 ) -> CollapseJob:
     """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
 
@@ -193,6 +198,7 @@ def collapse_job(
         solver_options=solver_options,
         bin_width=bin_width,
         x_max=x_max,
+        n_free=n_free,
     )
 
 
