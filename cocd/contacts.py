@@ -263,7 +263,7 @@ def _candidate_pairs(
             mine = np.repeat(free, counts)
             lo, hi = np.minimum(mine, others), np.maximum(mine, others)
             keys.append(lo * np.int64(n) + hi)
-    merged = np.unique(np.concatenate(keys))
+    merged = unique_ints(np.concatenate(keys))
     return merged // n, merged % n
 
 
@@ -452,7 +452,7 @@ def _passing_pairs(scene: Scene, start: FloatArray, d_max: float) -> tuple[IntAr
     lo, hi = np.minimum(centre, others), np.maximum(centre, others)
     keep = (lo != hi) & ~(scene.fixed[lo] & scene.fixed[hi])
     n = np.int64(x.shape[0])
-    keys = np.unique(lo[keep] * n + hi[keep])
+    keys = unique_ints(lo[keep] * n + hi[keep])
     return keys // n, keys % n
 
 
@@ -467,6 +467,22 @@ def _swept_gap(before: FloatArray, after: FloatArray) -> FloatArray:
     t = np.where(ee > 0.0, -np.einsum("ij,ij->i", before, e) / np.where(ee > 0.0, ee, 1.0), 0.0)
     t = np.clip(t, 0.0, 1.0)
     return np.asarray(np.linalg.norm(before + t[:, None] * e, axis=1))
+
+
+def unique_ints(a: IntArray) -> IntArray:
+    """The distinct values of an integer array, ascending: ``np.unique(a)`` by a sort.
+
+    numpy 2.3 and later answer ``np.unique`` on integers with a hash table, which on
+    millions of distinct 64-bit keys (the candidate pairs of a large step) takes about a
+    hundred times as long as sorting them.
+    """
+    s = np.sort(np.asarray(a).ravel())
+    if s.size < 2:
+        return s
+    keep = np.empty(s.size, dtype=bool)
+    keep[0] = True
+    np.not_equal(s[1:], s[:-1], out=keep[1:])
+    return s[keep]
 
 
 def _is_member(keys: IntArray, sorted_keys: IntArray) -> NDArray[np.bool_]:

@@ -225,7 +225,9 @@ class _Arrays:
         indices = B.indices.astype(np.int64)
         blocks = np.ascontiguousarray(B.data, dtype=np.float64).reshape(-1, m, m)
         rows = np.repeat(np.arange(nc), np.diff(indptr))
-        missing = np.setdiff1d(np.arange(nc), rows[indices == rows])
+        has_diagonal = np.zeros(nc, dtype=bool)
+        has_diagonal[rows[indices == rows]] = True
+        missing = np.flatnonzero(~has_diagonal)
         if missing.size:  # every diagonal block is stored, zero or not (Newton's pattern)
             rows = np.concatenate([rows, missing])
             indices = np.concatenate([indices, missing])

@@ -7,7 +7,7 @@ import pytest
 from conftest import jittered_lattice
 
 from cocd import Scene, SceneError, Wall, assemble, detect_contacts
-from cocd.contacts import contact_jacobian, dof_layout
+from cocd.contacts import contact_jacobian, dof_layout, unique_ints
 from cocd.problem import generalized_velocity
 
 R0 = 0.01
@@ -355,3 +355,13 @@ def test_bad_d_max_raises(d_max):
     scene = lattice_scene(2, seed=0)
     with pytest.raises(SceneError, match="d_max"):
         detect_contacts(scene, d_max)
+
+
+@pytest.mark.parametrize("size", [0, 1, 2, 1000])
+def test_unique_ints_is_np_unique(size):
+    """The sort-based distinct keys equal numpy's, repeats and extremes included."""
+    rng = np.random.default_rng(size)
+    a = rng.integers(-(2**62), 2**62, size)
+    a = np.concatenate([a, a[: size // 3], rng.integers(0, 5, size)])
+    np.testing.assert_array_equal(unique_ints(a), np.unique(a))
+    assert unique_ints(a).dtype == a.dtype

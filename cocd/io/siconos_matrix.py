@@ -257,9 +257,10 @@ def _read_sparse_block(rd: Reader, name: str, size0: int, size1: int) -> Matrix:
         )
     brow = np.repeat(np.arange(filled1 - 1), np.diff(ptr))
     key = brow * nb1 + bcol
-    if np.unique(key).size != key.size:
-        _, first, counts = np.unique(key, return_index=True, return_counts=True)
-        k = int(first[np.flatnonzero(counts > 1)[0]])
+    order = np.argsort(key, kind="stable")
+    twice = np.flatnonzero(key[order][1:] == key[order][:-1])
+    if twice.size:  # (a sort: np.unique hashes, far slower on many distinct keys)
+        k = int(order[twice[0]])
         raise rd.error(f"{what}: block ({int(brow[k])}, {int(bcol[k])}) is stored twice", at + k)
     start0 = np.concatenate([[0], cum0[:-1]])
     start1 = np.concatenate([[0], cum1[:-1]])
