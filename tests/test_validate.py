@@ -472,7 +472,7 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     from cocd.validate import dims
 
     kwargs = dict(
-        n2d=100, n3d=300, width=0.05, times=[0.1, 0.3], dt2d=2e-3, bed_length=0.6, tol=1e-4
+        n2d=100, n3d=300, width=0.05, times=[0.1, 0.3], dt2d=2e-3, bed_length=0.42, tol=1e-4
     )
     table = dims.STUDY(out=tmp_path, progress=_quiet([]), **kwargs)
     assert sorted(zip(table.slope_deg, table.t, strict=True)) == [
@@ -488,7 +488,12 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     assert table.seed_front_ratio.isna().all()  # the seed's ratios are at t = 1 s
     assert (table.n_2d == 100).all() and (table.n_3d == 300).all()
     assert (table.steps_3d == 30).all()  # dt3d = 0.01 s to 0.3 s
+    # Down the slope the fronts reach the bed's end (0.42 m, 2.1 R0) by t = 0.3 s.
+    cut = (by.front_2d_m >= 0.42 - 2e-3 * by.d_2d_mm) | (by.front_3d_m >= 0.42 - 2e-3 * by.d_3d_mm)
+    assert list(by.reached_end) == list(cut)
+    assert by.reached_end[22.0, 0.3] and not by.reached_end[0.0, 0.3]
     summary = json.loads((tmp_path / "dims.meta.json").read_text())["summary"]
+    assert ("cut short" in summary) == bool(by.reached_end.any())
     assert f"ratio {by.front_ratio[22.0, 0.3]:.3g}" in summary  # one packing: no spread
     assert f"3D {by.front_3d_R0[0.0, 0.3]:.2g} R0" in summary
     ensemble = pd.read_csv(tmp_path / "dims_ensemble.csv").set_index(["slope_deg", "t"])
