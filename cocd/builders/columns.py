@@ -380,7 +380,7 @@ def column_collapse(
     all_r = np.concatenate(parts_r)
     fixed = np.zeros(len(all_r), dtype=bool)
     fixed[groups["bed"]] = True
-    walls = side_friction(walls, mu_side)
+    walls = _side_friction(walls, mu_side)
     a = np.radians(slope_deg)
     gravity = np.zeros(dim)
     gravity[0], gravity[-1] = G * np.sin(a), -G * np.cos(a)
@@ -473,7 +473,7 @@ def static_box(
     walls = box_walls(dim, horizontal)
     scene_kw = dict(density=density, mu=mu, mu_wall=mu_wall)
     settled = deposit([positions], [radii], 0, walls, scene_kw, mu_prep, solver, cache)
-    walls = side_friction(walls, mu_side)
+    walls = _side_friction(walls, mu_side)
     return Scene(settled, radii, walls=walls, **scene_kw)  # type: ignore[arg-type]
 
 
@@ -485,10 +485,11 @@ def _check_mu_side(dim: int, mu_side: float | None) -> float | None:
     return friction_coefficient(mu_side, "mu_side")
 
 
-def side_friction(walls: Sequence[Wall], mu_side: float | None) -> list[Wall]:
+def _side_friction(walls: Sequence[Wall], mu_side: float | None) -> list[Wall]:
     """``walls`` with friction ``mu_side`` on those whose normal is along y.
 
-    In 3D these are a channel's two sidewalls; ``None`` leaves every wall as it is.
+    In 3D these are a channel's two sidewalls (callers check the dimension: in 2D the
+    floor's normal is along y); ``None`` leaves every wall as it is.
     """
     if mu_side is None:
         return list(walls)

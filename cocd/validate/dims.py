@@ -119,6 +119,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 label = f"{dim}d_n{n}_slope{slope:g}_mu{cfg.mu:g}"
                 if dim == 3:
                     label += f"_W{width * 100:g}cm"
+                label += f"_bed{bed:g}m"
                 cases.append((seed, slope, dim))
                 jobs.append(
                     base.collapse_job(
@@ -180,9 +181,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     ensemble = base.ensemble(
         table, ["slope_deg", "t"], ["front_2d_R0", "front_3d_R0", "front_ratio"]
     )
-    ensemble["reached_end"] = (
-        table.groupby(["slope_deg", "t"]).reached_end.sum().to_numpy(dtype=int)
-    )
+    cut_short = table.groupby(["slope_deg", "t"]).reached_end.sum()
+    ensemble["reached_end"] = [
+        int(cut_short[slope, t]) for slope, t in zip(ensemble.slope_deg, ensemble.t, strict=True)
+    ]
     last = ensemble[ensemble.t == times[-1]]
     seed_ratio = {slope: SEED_FRONT_RATIO.get(slope, math.nan) for slope in slopes}
     said = "; ".join(
@@ -195,10 +197,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         )
         for r in last.to_dict("records")
     )
-    cut = table[table.reached_end]
+    cut = table[table.reached_end].groupby(["slope_deg", "t"]).seed.count()
     ends = (
-        f" The front reached the bed's end ({bed:g} m) at "
-        + ", ".join(f"{r.slope_deg:g} deg, t = {r.t:g} s" for r in cut.itertuples())
+        f" A front reached the bed's end ({bed:g} m) at "
+        + ", ".join(f"{slope:g} deg, t = {t:g} s ({k} of {seeds})" for (slope, t), k in cut.items())
         + ": those fronts are cut short; lengthen the bed (`--bed-length`)."
         if len(cut)
         else ""
