@@ -484,6 +484,13 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
         assert front[0.0, 0.3] > front[0.0, 0.1] > 0.95  # from about R0, spreading
         assert front[22.0, 0.3] > front[0.0, 0.3]  # further down the slope
     assert np.allclose(table.front_ratio, table.front_2d_m / table.front_3d_m)
+    # The main mass ends behind the front (its trail of grains ahead left out), within a
+    # bin (one diameter), and past the column's start.
+    for dim in ("2d", "3d"):
+        mass_end = table[f"mass_end_{dim}_R0"] * dims.LENGTH
+        assert np.all(mass_end <= table[f"front_{dim}_m"] + 1e-3 * table[f"d_{dim}_mm"])
+        assert np.all(mass_end > 0.9 * dims.LENGTH)
+    assert np.allclose(table.mass_end_ratio, table.mass_end_2d_R0 / table.mass_end_3d_R0)
     assert np.allclose(table.front_2d_R0 * dims.LENGTH, table.front_2d_m)
     assert table.seed_front_ratio.isna().all()  # the seed's ratios are at t = 1 s
     assert (table.n_2d == 100).all() and (table.n_3d == 300).all()

@@ -149,6 +149,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             two, three = made[seed, slope, 2], made[seed, slope, 3]
             for t in times:
                 f2, f3 = _front_at(two, t), _front_at(three, t)
+                m2, m3 = _mass_end(two, t), _mass_end(three, t)
                 rows.append(
                     {
                         "slope_deg": slope,
@@ -163,6 +164,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                         "front_2d_R0": f2 / LENGTH,
                         "front_3d_R0": f3 / LENGTH,
                         "front_ratio": f2 / f3,
+                        "mass_end_2d_R0": m2 / LENGTH,
+                        "mass_end_3d_R0": m3 / LENGTH,
+                        "mass_end_ratio": m2 / m3,
                         # A front at the bed's end is cut short: the ratio is not the flow's.
                         "reached_end": bool(
                             max(f2 - bed + 2.0 * two.d_mean, f3 - bed + 2.0 * three.d_mean) >= 0.0
@@ -179,8 +183,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     table = pd.DataFrame(rows)
     figure = _figure(out / "dims_profiles.png", made, seeds, slopes, times, cfg.mu, width)
     ensemble = base.ensemble(
-        table, ["slope_deg", "t"], ["front_2d_R0", "front_3d_R0", "front_ratio"]
-    )
+        table,
+        ["slope_deg", "t"],
+        ["front_2d_R0", "front_3d_R0", "front_ratio", "mass_end_2d_R0", "mass_end_3d_R0",
+         "mass_end_ratio"],
+    )  # fmt: skip
     cut_short = table.groupby(["slope_deg", "t"]).reached_end.sum()
     ensemble["reached_end"] = [
         int(cut_short[slope, t]) for slope, t in zip(ensemble.slope_deg, ensemble.t, strict=True)
@@ -195,6 +202,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             if times[-1] == 1.0 and math.isfinite(seed_ratio[r["slope_deg"]])
             else ""
         )
+        + f", of the main masses' ends {base.pm(r, 'mass_end_ratio', 3)}"
         for r in last.to_dict("records")
     )
     cut = table[table.reached_end].groupby(["slope_deg", "t"]).seed.count()
@@ -217,6 +225,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "Fronts (:func:`cocd.measure.surface_front`, the side view in 3D: the highest "
         "grain across the width) from the back wall, in m and in R0 = "
         f"{LENGTH:g} m; `front_ratio` = 2D / 3D; `seed_front_ratio`: the seed's at t = 1 s; "
+        "`mass_end_*`: where the main mass's profile ends (the last bin, one diameter wide, "
+        "where it stands above the bed; the grains running ahead of it in a thin trail are "
+        "left out), in R0, and its 2D / 3D ratio; "
         "`reached_end`: a front (2D or 3D) within two diameters of the bed's end, cut short "
         "by it; `s_per_step_3d`: detection, set-up and solve per 3D step."
     )
@@ -236,6 +247,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     return table
 
 
+def _mass_end(series: CollapseSeries, t: float) -> float:
+    """Where the main mass's profile at ``t`` ends: the far edge of its last bin above
+    the bed (m from the back wall)."""
+    k = int(np.argmin(np.abs(np.asarray(series.profile_times) - t)))
+    above = np.flatnonzero(series.profiles[k] > 0.0)
+    return float(series.x_edges[above[-1] + 1]) if above.size else math.nan
+
+
 def _front_at(series: CollapseSeries, t: float) -> float:
     """The front at the saved frame nearest ``t``."""
     k = int(np.argmin(np.abs(series.times - t)))
@@ -251,17 +270,24 @@ def _figure(
     mu: float,
     width: float,
 ) -> Path:
-    """Fig. 7: per slope, the profiles at t = 0 and the asked times, 2D dashed, 3D solid
-    (the first packing)."""
+    """Fig. 7: per slope, the profiles of the main mass at t = 0 and the asked times, 2D
+    dashed, 3D solid, and the fronts on the bed (2D down, 3D up triangles; the first
+    packing)."""
     plt = base.pyplot()
     fig, axes = plt.subplots(1, len(slopes), figsize=(6 * len(slopes), 3.6), squeeze=False)
     for ax, slope in zip(axes[0], slopes, strict=True):
-        for dim, style in ((2, "--"), (3, "-")):
+        reach = LENGTH
+        for dim, style, mark in ((2, "--", "v"), (3, "-", "^")):
             s = made[0, slope, dim]
             centres = 0.5 * (s.x_edges[1:] + s.x_edges[:-1])
             for k, t in enumerate(s.profile_times):
                 ax.plot(centres, s.profiles[k], style, color=f"C{k}",
                         label=f"{dim}D, t = {t:g} s")  # fmt: skip
+                # The front (grains ahead of the main mass included) on the bed.
+                front = _front_at(s, t)
+                ax.plot([front], [0.0], mark, color=f"C{k}", ms=7, clip_on=False)
+                reach = max(reach, front)
+        ax.set_xlim(0.0, 1.15 * reach)
         ax.set_title(f"slope {slope:g} deg")
         ax.set_xlabel("x from the back wall (m)")
         ax.grid(True, alpha=0.3)
@@ -269,8 +295,8 @@ def _figure(
     axes[0][0].legend(fontsize="small")
     two, three = made[0, slopes[0], 2], made[0, slopes[0], 3]
     fig.suptitle(
-        f"2D ({two.n_grains} discs, dashed) and 3D ({three.n_grains} spheres in a "
-        f"{width * 100:g} cm channel, solid), mu = {mu:g}"
+        f"2D ({two.n_grains} discs, dashed, fronts v) and 3D ({three.n_grains} spheres in a "
+        f"{width * 100:g} cm channel, solid, fronts ^), mu = {mu:g}"
         + (f"; packing 0 of {seeds}" if seeds > 1 else "")
     )
     return base.save_figure(fig, path)
