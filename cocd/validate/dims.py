@@ -288,7 +288,11 @@ def _figure(
                 ax.plot([front], [0.0], mark, color=f"C{k}", ms=7, clip_on=False)
                 reach = max(reach, front)
         ax.set_xlim(0.0, 1.15 * reach)
-        ax.set_title(f"slope {slope:g} deg")
+        seed = SEED_FRONT_RATIO.get(slope)
+        ax.set_title(
+            f"slope {slope:g} deg"
+            + (f" (seed: 2D front {100 * (seed - 1):.0f} % further at 1 s)" if seed else "")
+        )
         ax.set_xlabel("x from the back wall (m)")
         ax.grid(True, alpha=0.3)
     axes[0][0].set_ylabel("h (m)")
