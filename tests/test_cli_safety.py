@@ -156,11 +156,16 @@ def test_ctrl_c_in_a_terminal_says_where_and_how_to_resume(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "cocd", "run", "--steps", "5000", "--frame-every", "2"]
     cmd += ["--out", str(out)]
-    # A shell that runs the tests in the background may ignore SIGINT, and children
-    # inherit that: the command gets the default handling a terminal user has.
+    # A shell that runs the tests in the background may ignore SIGINT, and a library
+    # may have left it blocked in this process: children inherit both. The command
+    # gets the default handling, and the signal mask, a terminal user has.
+    def as_in_a_terminal() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
     child = pexpect.spawn(
         cmd[0], cmd[1:], encoding="utf-8", timeout=120, dimensions=(24, 80),
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        preexec_fn=as_in_a_terminal,
     )  # fmt: skip
     while True:  # a few steps in, a few frames written
         child.expect(r"(\d+)/5000")
