@@ -510,6 +510,14 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     again = dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
     assert sum(line.endswith("(kept)") for line in lines) == 4
     pd.testing.assert_frame_equal(again, table)
+    # With the 2D runs kept and the 3D ones to measure again, the rest is not timed at
+    # the 2D runs' rate.
+    for kept in (tmp_path / "runs" / "dims").glob("3d_*/measured.json"):
+        kept.unlink()
+    lines = []
+    dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
+    (rest,) = [line for line in lines if "2 of 4 runs kept" in line]
+    assert "kept runs' rate" not in rest
 
 
 def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path, monkeypatch):

@@ -495,20 +495,21 @@ def collapse_runs(
             todo.append(k)
     if todo and len(todo) < len(jobs):
         units = [estimate.work([(job.free_grains, job.steps)]) for job in jobs]
-        # The kept runs' rate, if they were made as the rest will be (same backend and
-        # tolerance): an ipm run's rate says little of an nscd run's.
-        ways = {(jobs[k].how.solver, jobs[k].how.tol) for k in todo}
+        # The kept runs' rate, if they were made as the rest will be (same backend,
+        # tolerance and dimension): an ipm run's rate says little of an nscd run's, nor
+        # a 2D run's of a 3D one's, whose steps need many more iterations per grain.
+        ways = {_way(jobs[k]) for k in todo}
         like = [
             (job, s)
             for job, s in zip(jobs, series, strict=True)
-            if s is not None and (job.how.solver, job.how.tol) in ways
+            if s is not None and _way(job) in ways
         ]
         measured = (
             (
                 sum(s.compute_s for _, s in like),
                 estimate.work([(job.free_grains, s.steps) for job, s in like]),
             )
-            if {(job.how.solver, job.how.tol) for job, _ in like} == ways
+            if {_way(job) for job, _ in like} == ways
             else None
         )
         estimate.kept(
@@ -529,6 +530,12 @@ def collapse_runs(
     for job, s in done:
         estimate.made(job.free_grains, s.steps_made)  # none for a run read back
     return [s for _, s in done]
+
+
+def _way(job: CollapseJob) -> tuple[Any, ...]:
+    """What sets a run's rate per unit of work besides its size: backend, tolerance and
+    dimension."""
+    return (job.how.solver, job.how.tol, job.params.get("dim"))
 
 
 def _kept(job: CollapseJob) -> CollapseSeries | None:
