@@ -725,3 +725,27 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         assert result.exit_code == 2, (args, result.output)
         assert message in result.output, (args, result.output)
         assert "Traceback" not in result.output
+
+
+def test_ensemble_gives_mean_spread_and_flag_counts_per_group():
+    """Three packings of one case and one of another: mean, sample spread (none for
+    one packing) and how many packings have each flag set."""
+    table = pd.DataFrame(
+        {
+            "slope": [0.0, 0.0, 0.0, 22.0],
+            "front": [1.0, 2.0, 3.0, 5.0],
+            "reached_end": [True, False, True, False],
+        }
+    )
+    out = validate.ensemble(table, ["slope"], ["front"], counts=["reached_end"])
+    assert list(out.seeds) == [3, 1]
+    assert list(out.front) == [2.0, 5.0]
+    assert out.front_sd[0] == pytest.approx(1.0) and math.isnan(out.front_sd[1])
+    assert list(out.reached_end) == [2, 0] and out.reached_end.dtype.kind == "i"
+
+
+def test_a_front_within_two_diameters_of_the_bed_end_is_cut_short():
+    d = 0.01
+    assert not validate.cut_short([0.5, 0.97], bed=1.0, d_mean=d)
+    assert validate.cut_short([0.5, 0.985, 0.9], bed=1.0, d_mean=d)  # any of the series
+    assert validate.cut_short(0.995, bed=1.0, d_mean=d)

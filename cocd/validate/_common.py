@@ -436,16 +436,35 @@ def coarsen(h: ArrayLike, k: int) -> FloatArray:
     return np.asarray(np.concatenate([h, np.zeros(pad)]).reshape(-1, k).mean(axis=1))
 
 
-def ensemble(table: pd.DataFrame, keys: Sequence[str], columns: Sequence[str]) -> pd.DataFrame:
+def ensemble(
+    table: pd.DataFrame,
+    keys: Sequence[str],
+    columns: Sequence[str],
+    counts: Sequence[str] = (),
+) -> pd.DataFrame:
     """Mean and sample spread over the packings (rows sharing ``keys``): per group,
     ``seeds`` (rows), and for each of ``columns`` its mean and ``<column>_sd`` (sample
-    standard deviation, NaN for one packing)."""
+    standard deviation, NaN for one packing); for each of ``counts`` (flags), how many
+    of the group's packings have it set."""
     grouped = table.groupby(list(keys), sort=True)
     out = grouped.size().rename("seeds").to_frame()
     for column in columns:
         out[column] = grouped[column].mean()
         out[f"{column}_sd"] = grouped[column].std(ddof=1)
+    for column in counts:
+        out[column] = grouped[column].sum().astype(int)
     return out.reset_index()
+
+
+#: A front within this many mean diameters of the bed's end is cut short by it.
+END_MARGIN_D = 2.0
+
+
+def cut_short(front: ArrayLike, bed: float, d_mean: float) -> bool:
+    """Whether a front (or any of a series of them) came within :data:`END_MARGIN_D`
+    mean diameters ``d_mean`` of the end of a bed ``bed`` long: it may have run further
+    on a longer bed, so its runout is not the flow's."""
+    return bool(np.max(front) >= bed - END_MARGIN_D * d_mean)
 
 
 def pm(row: Any, column: str, digits: int = 3) -> str:

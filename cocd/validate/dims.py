@@ -168,9 +168,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                         "mass_end_3d_R0": m3 / LENGTH,
                         "mass_end_ratio": m2 / m3,
                         # A front at the bed's end is cut short: the ratio is not the flow's.
-                        "reached_end": bool(
-                            max(f2 - bed + 2.0 * two.d_mean, f3 - bed + 2.0 * three.d_mean) >= 0.0
-                        ),
+                        "reached_end": base.cut_short(f2, bed, two.d_mean)
+                        or base.cut_short(f3, bed, three.d_mean),
                         "seed_front_ratio": SEED_FRONT_RATIO.get(slope, math.nan)
                         if t == 1.0
                         else math.nan,
@@ -187,11 +186,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         ["slope_deg", "t"],
         ["front_2d_R0", "front_3d_R0", "front_ratio", "mass_end_2d_R0", "mass_end_3d_R0",
          "mass_end_ratio"],
+        counts=["reached_end"],
     )  # fmt: skip
-    cut_short = table.groupby(["slope_deg", "t"]).reached_end.sum()
-    ensemble["reached_end"] = [
-        int(cut_short[slope, t]) for slope, t in zip(ensemble.slope_deg, ensemble.t, strict=True)
-    ]
     last = ensemble[ensemble.t == times[-1]]
     seed_ratio = {slope: SEED_FRONT_RATIO.get(slope, math.nan) for slope in slopes}
     said = "; ".join(

@@ -108,9 +108,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         table,
         ["slope_deg", "layer_d"],
         ["runout_over_R0", "runout_ratio", "front_R0", "end_speed_d_s"],
-    )
-    ensemble["reached_end"] = (
-        table.groupby(["slope_deg", "layer_d"]).reached_end.sum().to_numpy(dtype=int)
+        counts=["reached_end"],
     )
     gaps = _gaps(table, layers)
     files = report.write_table(
@@ -195,7 +193,7 @@ def _row(
         # of the mass count in the front only while they stay connected to it.
         "end_range_R0": float(np.ptp(s.front[late])) / front0,
         # The front within two diameters of the bed's end: runout cut short.
-        "reached_end": bool(np.max(s.front) >= bed - 2.0 * s.d_mean),
+        "reached_end": base.cut_short(s.front, bed, s.d_mean),
         "n_layer": int(s.stats.n.iloc[0]) - s.n_grains,
         "steps": s.steps,
         "penetration_max": s.penetration_max,

@@ -232,7 +232,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 "Hf_m": Hf,
                 "Hf_over_H0": Hf / H_built,
                 "front_speed_end_d_per_s": speed / s.d_mean,
-                "reached_end": bool(np.max(s.front) >= bed - 2.0 * s.d_mean),
+                "reached_end": base.cut_short(s.front, bed, s.d_mean),
                 "penetration_max": s.penetration_max,
                 "compute_s": s.compute_s,
             }
