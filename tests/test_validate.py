@@ -82,11 +82,16 @@ def test_runs_made_two_at_once_give_the_same_tables_and_are_read_back(tmp_path):
     for label in labels + [f"{x}_s1" for x in labels]:
         assert any(line.startswith(f"timestep: {label} (") for line in lines), label
         assert any(re.match(rf"  {label}: step (\d+)/\1 ", line) for line in lines), label
-    assert json.loads((together / "timestep.meta.json").read_text())["work_units"] > 0
+    made = json.loads((together / "timestep.meta.json").read_text())
+    assert made["work_units"] > 0
     again: list[str] = []
     timestep.STUDY(out=together, progress=again.append, workers=2, **case)
     assert not any(": step " in line for line in again)  # read back, nothing solved
-    assert json.loads((together / "timestep.meta.json").read_text())["work_units"] == 0
+    # The record keeps the time and work of the command that solved, and says when.
+    read_back = json.loads((together / "timestep.meta.json").read_text())
+    for key in ("elapsed_s", "work_units", "workers"):
+        assert read_back[key] == made[key]
+    assert read_back["timed"] == made["written"]
     with pytest.raises(CocdError, match="workers must be an integer >= 1, got 0"):
         timestep.STUDY(out=together, progress=_quiet([]), workers=0, **case)
     assert dict(os.environ) == environ  # the workers' one-thread settings stay theirs
@@ -189,10 +194,10 @@ def test_a_case_is_rebuilt_from_its_kept_measurements_without_run_files(tmp_path
     table2 = timestep.STUDY(out=tmp_path, progress=again.append, **case)
     assert not any("step " in line for line in again)
     assert not any((folder / "run.h5").exists() for folder in runs)
-    # Nothing was solved: the record's work is nil, so the next estimate does not take
-    # the read-back's seconds for the solves' rate.
+    # Nothing was solved: the record keeps the solves' work and time, so the next
+    # estimate does not take the read-back's seconds for the solves' rate.
     assert first_work > 0
-    assert json.loads((tmp_path / "timestep.meta.json").read_text())["work_units"] == 0
+    assert json.loads((tmp_path / "timestep.meta.json").read_text())["work_units"] == first_work
     pd.testing.assert_frame_equal(table, table2)
     # Other profile times: the kept measurements do not answer, the runs are made again.
     lines: list[str] = []

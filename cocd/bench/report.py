@@ -194,8 +194,28 @@ def write_meta(
     summary: str = "",
     command: str | None = None,
 ) -> Path:
-    """Record the provenance of ``files`` in ``<name>.meta.json``."""
+    """Record the provenance of ``files`` in ``<name>.meta.json``.
+
+    The command's time and work (:func:`cocd.bench.estimate.record`) are recorded when
+    it solved something. When it solved nothing (its runs all read back, e.g. to redraw
+    a figure), an earlier record's time and work stay, with when they were taken
+    (``timed``): the next estimate's rate, and the command's cost, are the solves'.
+    """
     out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}.meta.json"
+    timing: dict[str, Any] = dict(estimate.record())
+    if timing.get("work_units") == 0:
+        try:
+            earlier = json.loads(path.read_text())
+            if float(earlier["work_units"]) > 0:
+                timing = {
+                    "elapsed_s": earlier["elapsed_s"],
+                    "work_units": earlier["work_units"],
+                    "workers": earlier.get("workers", 1),
+                    "timed": earlier.get("timed", earlier.get("written")),
+                }
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
     meta = {
         "name": name,
         "title": title,
@@ -204,9 +224,8 @@ def write_meta(
         "written": _dt.datetime.now().isoformat(timespec="seconds"),
         "files": sorted({os.path.relpath(p, out) for p in files}),
         "summary": summary,
-        **estimate.record(),
+        **timing,
     }
-    path = out / f"{name}.meta.json"
     path.write_text(json.dumps(meta, indent=2) + "\n")
     return path
 
