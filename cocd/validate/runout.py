@@ -393,7 +393,7 @@ def _grains(table: pd.DataFrame) -> str:
 def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, width_d: float) -> Path:
     """Runout and H0/Hf against a: every packing's point, the mean +- sd and the fitted
     laws, per sidewall friction in 3D."""
-    from matplotlib.ticker import NullFormatter, ScalarFormatter
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
     plt = base.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
@@ -447,8 +447,10 @@ def _figure(path: Path, table: pd.DataFrame, fits: pd.DataFrame, mu: float, widt
     axes[0].plot([], [], ".", color="0.6", label="each packing")
     for ax in axes:
         ax.legend(fontsize="small")
-        ax.xaxis.set_major_formatter(ScalarFormatter())  # 1, 10: no minor labels
-        ax.xaxis.set_minor_formatter(NullFormatter())
+        for axis in (ax.xaxis, ax.yaxis):  # 1, 2, 5, 10, 20: not 10^0, 10^1
+            axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(ScalarFormatter())
+            axis.set_minor_formatter(NullFormatter())
     if three_d:
         fig.suptitle(
             f"3D collapses, {_grains(table)} spheres, mu = {mu:g}, channel {width_d:g} d wide"
