@@ -10,13 +10,19 @@ from typing import Any
 __all__ = ["provenance"]
 
 
+#: The paths of the work tree that make the software.
+CODE = ("cocd", "solvers", "pyproject.toml")
+
+
 @functools.cache
 def provenance() -> dict[str, Any]:
     """``{"cocd": version, "commit": sha or None, "dirty": bool or None}``.
 
     ``commit`` is the checkout's ``HEAD`` when cocd runs from a git work tree
-    (an editable install), with ``dirty`` true when it has uncommitted changes;
-    both are None otherwise (an installed wheel, or no git).
+    (an editable install), with ``dirty`` true when its code (:data:`CODE`) has
+    uncommitted changes; both are None otherwise (an installed wheel, or no git).
+    Results written into the work tree (e.g. a figure written before its record) do
+    not make the software dirty.
     """
     from cocd import __version__
 
@@ -31,7 +37,8 @@ def provenance() -> dict[str, Any]:
         if head.returncode == 0 and (root / "cocd").is_dir():
             commit = head.stdout.strip() or None
             status = subprocess.run(
-                ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no",
+                 "--", *CODE],
                 capture_output=True, text=True, timeout=5, check=False,
             )  # fmt: skip
             dirty = bool(status.stdout.strip()) if status.returncode == 0 else None

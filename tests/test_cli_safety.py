@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pandas as pd
+import pytest
 from typer.testing import CliRunner
 
 from cocd.cli import app
@@ -282,3 +283,42 @@ def test_bench_and_validate_write_outside_the_committed_results_by_default():
     assert OUTS["bench"].parts[0] == OUTS["validate"].parts[0] == "cocd-results"
     result = runner.invoke(app, ["sweep", "--help"])
     assert "default cocd-results/sweeps/<name>" in result.output
+
+
+def test_provenance_is_modified_by_code_changes_not_by_results_written(tmp_path):
+    """A checkout's commit is "modified" when its code changes, not when a command
+    writes results into the tree (a figure is written before its record)."""
+    import importlib.util
+    import shutil
+    import subprocess
+
+    import cocd.provenance
+
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+    (tmp_path / "cocd").mkdir()
+    (tmp_path / "results").mkdir()
+    copy = tmp_path / "cocd" / "provenance.py"
+    shutil.copy(cocd.provenance.__file__, copy)
+    (tmp_path / "results" / "figure.png").write_text("old")
+
+    def git(*args: str) -> None:
+        subprocess.run(
+            ["git", "-c", "user.name=t", "-c", "user.email=t@t", *args],
+            cwd=tmp_path, check=True, capture_output=True,
+        )  # fmt: skip
+
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-qm", "first")
+    spec = importlib.util.spec_from_file_location("provenance_copy", copy)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.provenance()["dirty"] is False and module.provenance()["commit"]
+    (tmp_path / "results" / "figure.png").write_text("new")
+    module.provenance.cache_clear()
+    assert module.provenance()["dirty"] is False
+    copy.write_text(copy.read_text() + "\n# changed\n")
+    module.provenance.cache_clear()
+    assert module.provenance()["dirty"] is True
