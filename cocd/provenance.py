@@ -10,8 +10,8 @@ from typing import Any
 __all__ = ["provenance"]
 
 
-#: The paths of the work tree that make the software.
-CODE = ("cocd", "solvers", "pyproject.toml")
+#: The work tree's results folder: files a command writes, not the software.
+RESULTS = "results"
 
 
 @functools.cache
@@ -19,10 +19,9 @@ def provenance() -> dict[str, Any]:
     """``{"cocd": version, "commit": sha or None, "dirty": bool or None}``.
 
     ``commit`` is the checkout's ``HEAD`` when cocd runs from a git work tree
-    (an editable install), with ``dirty`` true when its code (:data:`CODE`) has
-    uncommitted changes; both are None otherwise (an installed wheel, or no git).
-    Results written into the work tree (e.g. a figure written before its record) do
-    not make the software dirty.
+    (an editable install), with ``dirty`` true when it has uncommitted changes outside
+    its results folder (:data:`RESULTS`: a figure written before its record does not
+    make the software dirty); both are None otherwise (an installed wheel, or no git).
     """
     from cocd import __version__
 
@@ -38,7 +37,7 @@ def provenance() -> dict[str, Any]:
             commit = head.stdout.strip() or None
             status = subprocess.run(
                 ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no",
-                 "--", *CODE],
+                 "--", ".", f":(exclude){RESULTS}"],
                 capture_output=True, text=True, timeout=5, check=False,
             )  # fmt: skip
             dirty = bool(status.stdout.strip()) if status.returncode == 0 else None

@@ -304,7 +304,8 @@ def test_provenance_is_modified_by_code_changes_not_by_results_written(tmp_path)
 
     def git(*args: str) -> None:
         subprocess.run(
-            ["git", "-c", "user.name=t", "-c", "user.email=t@t", *args],
+            ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false",
+             *args],
             cwd=tmp_path, check=True, capture_output=True,
         )  # fmt: skip
 

@@ -79,3 +79,26 @@ def test_unreadable_record_falls_back_to_the_shipped_rate(tmp_path, monkeypatch)
     seconds = estimate.announce("table1", [(500, 4)], out=tmp_path, progress=lines.append)
     assert seconds == pytest.approx(estimate.RATES["table1"] * estimate.work([(500, 4)]))
     assert "from timings on a 2-core machine" in lines[-1]
+
+
+def test_a_record_of_nothing_solved_keeps_the_same_commands_earlier_timing(tmp_path, monkeypatch):
+    """Redrawn from kept runs (nothing solved), a record keeps the time and work of the
+    same command's earlier record, and when they were taken; another command's
+    record does not inherit them."""
+    from cocd.bench import report
+
+    def record(command: str, solved: float) -> dict:
+        monkeypatch.setattr(estimate, "_current", {})
+        estimate.announce("t", [(1000, 10)], out=tmp_path, progress=lambda _: None)
+        estimate.made(1000, solved)
+        report.write_meta(tmp_path, "t", title="T", files=[], command=command)
+        return json.loads((tmp_path / "t.meta.json").read_text())
+
+    first = record("cocd x", 10)
+    assert first["work_units"] > 0 and "timed" not in first
+    for _ in range(2):  # read back twice: the first record's timing and time stay
+        again = record("cocd x", 0)
+        assert again["work_units"] == first["work_units"]
+        assert again["elapsed_s"] == first["elapsed_s"] and again["timed"] == first["written"]
+    other = record("cocd x --more", 0)
+    assert other["work_units"] == 0 and "timed" not in other

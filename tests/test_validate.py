@@ -515,9 +515,15 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     again = dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
     assert sum(line.endswith("(kept)") for line in lines) == 4
     pd.testing.assert_frame_equal(again, table)
-    # With the 2D runs kept and the 3D ones to measure again, the rest is not timed at
-    # the 2D runs' rate.
-    for kept in (tmp_path / "runs" / "dims").glob("3d_*/measured.json"):
+    # The runs left are timed at the rate of the kept runs of their kind: with one 3D
+    # run kept, at its rate; with the 2D runs alone kept, not at theirs.
+    kept_3d = sorted((tmp_path / "runs" / "dims").glob("3d_*/measured.json"))
+    kept_3d[0].unlink()
+    lines = []
+    dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
+    (rest,) = [line for line in lines if "3 of 4 runs kept" in line]
+    assert rest.endswith("(at the kept runs' rate)")
+    for kept in kept_3d:
         kept.unlink()
     lines = []
     dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
@@ -754,3 +760,6 @@ def test_a_front_within_two_diameters_of_the_bed_end_is_cut_short():
     assert not validate.cut_short([0.5, 0.97], bed=1.0, d_mean=d)
     assert validate.cut_short([0.5, 0.985, 0.9], bed=1.0, d_mean=d)  # any of the series
     assert validate.cut_short(0.995, bed=1.0, d_mean=d)
+    assert validate.cut_short([0.5, math.nan, 0.999], bed=1.0, d_mean=d)  # NaN: unmeasured
+    assert not validate.cut_short([math.nan], bed=1.0, d_mean=d)
+    assert not validate.cut_short([], bed=1.0, d_mean=d)

@@ -154,11 +154,12 @@ def kept(
     long the other ``fraction`` of it should take, after ``what`` (e.g. ``6 of 27 runs
     kept``).
 
-    ``measured``: ``(seconds, work units)`` of kept runs made with the same backend and
-    tolerance as the rest, one worker's solve seconds (detection, set-up and solve; the
-    rest of a run, writing frames and measuring them, is left out, so the figure leans
-    low on small problems). When given, the rest is timed at that rate, the command's
-    own on this problem size, rather than at the announced one. ``runs``: how many runs
+    ``measured``: ``(seconds, work units)`` of the rest, timed at the rate of the kept
+    runs made as they will be (same backend, tolerance and dimension), in one worker's
+    solve seconds (detection, set-up and solve; the rest of a run, writing frames and
+    measuring them, is left out, so the figure leans low on small problems). When
+    given, the rest is timed at that rate, the command's own on this problem size,
+    rather than at the announced one. ``runs``: how many runs
     are left; fewer than the workers keep only that many busy.
     """
     if _current.get("seconds") is None:

@@ -198,29 +198,35 @@ def write_meta(
 
     The command's time and work (:func:`cocd.bench.estimate.record`) are recorded when
     it solved something. When it solved nothing (its runs all read back, e.g. to redraw
-    a figure), an earlier record's time and work stay, with when they were taken
-    (``timed``): the next estimate's rate, and the command's cost, are the solves'.
+    a figure), the time and work of an earlier record of the same command on a like
+    machine (processor and cores) stay, with when they were taken (``timed``): the next
+    estimate's rate, and the command's cost, are the solves'.
     """
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.meta.json"
+    command = command or command_line()
+    machine = machine_info()
     timing: dict[str, Any] = dict(estimate.record())
     if timing.get("work_units") == 0:
         try:
             earlier = json.loads(path.read_text())
-            if float(earlier["work_units"]) > 0:
+            same = earlier["command"] == command and all(
+                earlier["machine"].get(key) == machine.get(key) for key in ("cpu", "cores")
+            )
+            if same and float(earlier["work_units"]) > 0:
                 timing = {
                     "elapsed_s": earlier["elapsed_s"],
                     "work_units": earlier["work_units"],
                     "workers": earlier.get("workers", 1),
                     "timed": earlier.get("timed", earlier.get("written")),
                 }
-        except (OSError, ValueError, KeyError, TypeError):
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass
     meta = {
         "name": name,
         "title": title,
-        "command": command or command_line(),
-        "machine": machine_info(),
+        "command": command,
+        "machine": machine,
         "written": _dt.datetime.now().isoformat(timespec="seconds"),
         "files": sorted({os.path.relpath(p, out) for p in files}),
         "summary": summary,

@@ -463,8 +463,11 @@ END_MARGIN_D = 2.0
 def cut_short(front: ArrayLike, bed: float, d_mean: float) -> bool:
     """Whether a front (or any of a series of them) came within :data:`END_MARGIN_D`
     mean diameters ``d_mean`` of the end of a bed ``bed`` long: it may have run further
-    on a longer bed, so its runout is not the flow's."""
-    return bool(np.max(front) >= bed - END_MARGIN_D * d_mean)
+    on a longer bed, so its runout is not the flow's. Fronts not measured (NaN: no bin
+    carried the flow) are left out."""
+    fronts = np.asarray(front, dtype=float).reshape(-1)
+    fronts = fronts[np.isfinite(fronts)]
+    return bool(fronts.size and fronts.max() >= bed - END_MARGIN_D * d_mean)
 
 
 def pm(row: Any, column: str, digits: int = 3) -> str:
@@ -514,28 +517,11 @@ def collapse_runs(
             todo.append(k)
     if todo and len(todo) < len(jobs):
         units = [estimate.work([(job.free_grains, job.steps)]) for job in jobs]
-        # The kept runs' rate, if they were made as the rest will be (same backend,
-        # tolerance and dimension): an ipm run's rate says little of an nscd run's, nor
-        # a 2D run's of a 3D one's, whose steps need many more iterations per grain.
-        ways = {_way(jobs[k]) for k in todo}
-        like = [
-            (job, s)
-            for job, s in zip(jobs, series, strict=True)
-            if s is not None and _way(job) in ways
-        ]
-        measured = (
-            (
-                sum(s.compute_s for _, s in like),
-                estimate.work([(job.free_grains, s.steps) for job, s in like]),
-            )
-            if {_way(job) for job, _ in like} == ways
-            else None
-        )
         estimate.kept(
             sum(units[k] for k in todo) / sum(units),
             f"{len(jobs) - len(todo)} of {len(jobs)} runs kept",
             progress,
-            measured=measured,
+            measured=_kept_rate(jobs, series, todo, units),
             runs=len(todo),
         )
     if workers == 1 or len(todo) < 2:
@@ -549,6 +535,32 @@ def collapse_runs(
     for job, s in done:
         estimate.made(job.free_grains, s.steps_made)  # none for a run read back
     return [s for _, s in done]
+
+
+def _kept_rate(
+    jobs: Sequence[CollapseJob],
+    series: Sequence[CollapseSeries | None],
+    todo: Sequence[int],
+    units: Sequence[float],
+) -> tuple[float, float] | None:
+    """``(seconds, work units)`` of the runs to make, each kind (:func:`_way`) timed at
+    the rate of the kept runs of that kind, for :func:`cocd.bench.estimate.kept`; None
+    when a kind to make has no kept run (an ipm run's rate says little of an nscd
+    run's, nor a 2D run's of a 3D one's, whose steps need many more iterations per
+    grain)."""
+    spent: dict[tuple[Any, ...], list[float]] = {}
+    for job, s in zip(jobs, series, strict=True):
+        if s is not None:
+            done = spent.setdefault(_way(job), [0.0, 0.0])
+            done[0] += s.compute_s
+            done[1] += estimate.work([(job.free_grains, s.steps)])
+    seconds = 0.0
+    for k in todo:
+        done = spent.get(_way(jobs[k]))
+        if done is None or not (done[0] > 0.0 and done[1] > 0.0):
+            return None
+        seconds += done[0] / done[1] * units[k]
+    return seconds, sum(units[k] for k in todo)
 
 
 def _way(job: CollapseJob) -> tuple[Any, ...]:

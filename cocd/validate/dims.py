@@ -201,10 +201,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         + f", of the main masses' ends {base.pm(r, 'mass_end_ratio', 3)}"
         for r in last.to_dict("records")
     )
-    cut = table[table.reached_end].groupby(["slope_deg", "t"]).seed.count()
+    cut = ensemble[ensemble.reached_end > 0]
     ends = (
         f" A front reached the bed's end ({bed:g} m) at "
-        + ", ".join(f"{slope:g} deg, t = {t:g} s ({k} of {seeds})" for (slope, t), k in cut.items())
+        + ", ".join(
+            f"{r.slope_deg:g} deg, t = {r.t:g} s ({r.reached_end} of {r.seeds})"
+            for r in cut.itertuples()
+        )
         + ": those fronts are cut short; lengthen the bed (`--bed-length`)."
         if len(cut)
         else ""

@@ -220,8 +220,7 @@ def _gaps(table: pd.DataFrame, layers: list[float]) -> pd.DataFrame:
             )
     keys = ["slope_deg", "from_layer_d", "to_layer_d"]
     per_seed = pd.DataFrame(rows, columns=[*keys, "seed", "gap_R0", "cut_short"])
-    out = base.ensemble(per_seed, keys, ["gap_R0"])
-    out["cut_short"] = per_seed.groupby(keys).cut_short.sum().to_numpy(dtype=int)
+    out = base.ensemble(per_seed, keys, ["gap_R0"], counts=["cut_short"])
     seed_gap = [
         SEED_GAPS_3_TO_5.get(float(sl), np.nan) if (a, b) == (3.0, 5.0) else np.nan
         for sl, a, b in zip(out.slope_deg, out.from_layer_d, out.to_layer_d, strict=True)

@@ -253,7 +253,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             fit_rows.append({**head, "quantity": quantity, **fit})
     fits = pd.DataFrame(fit_rows)
     keys = ["a"] if dim == 2 else ["side_mu", "a"]
-    ensemble = base.ensemble(table, keys, ["a_built", "runout", "Hf_over_H0"])
+    ensemble = base.ensemble(
+        table, keys, ["a_built", "runout", "Hf_over_H0"], counts=["reached_end"]
+    )
     figures = [_figure(out / f"{name}.png", table, fits, cfg.mu, width_d)]
     per_channel = "" if dim == 2 else " One pair of fits per sidewall friction `side_mu`."
     files = base.report.write_table(
@@ -279,7 +281,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         + ("" if dim == 2 else " and sidewall friction")
         + ", over the packings (`seeds`): mean and sample standard "
         "deviation (`_sd`) of the built ratio `a_built`, of the runout (Lf - L0)/L0 and of "
-        "Hf/H0.",
+        "Hf/H0; `reached_end`: packings whose front came within two diameters of the bed's "
+        "end (runout cut short).",
     )
 
     def law(fit: pd.Series, side: str) -> str:
@@ -332,6 +335,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "2005) gives a runout linear in a at small a and growing as about a^(2/3) above a of "
         "about 3."
     )
+    cut = table[table.reached_end]
+    if len(cut):
+        summary += (
+            " Cut short by the bed's end (the front within two diameters of it): a = "
+            + ", ".join(f"{a:g}" for a in sorted(set(cut.a)))
+            + "; those runouts are lower bounds."
+        )
     moving = table[table.front_speed_end_d_per_s > 1.0]
     if len(moving):
         summary += (
