@@ -556,10 +556,10 @@ def _kept_rate(
             done[1] += estimate.work([(job.free_grains, s.steps)])
     seconds = 0.0
     for k in todo:
-        done = spent.get(_way(jobs[k]))
-        if done is None or not (done[0] > 0.0 and done[1] > 0.0):
+        kind = spent.get(_way(jobs[k]))
+        if kind is None or not (kind[0] > 0.0 and kind[1] > 0.0):
             return None
-        seconds += done[0] / done[1] * units[k]
+        seconds += kind[0] / kind[1] * units[k]
     return seconds, sum(units[k] for k in todo)
 
 
