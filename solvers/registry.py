@@ -183,7 +183,7 @@ def _builtin() -> list[SolverInfo]:
             "apgd",
             "dual",
             "Accelerated projected gradient descent (Nesterov, restart) on the dual.",
-            accepts=("check_every", "scaling", "polish"),
+            accepts=("check_every", "scaling", "operator", "polish"),
             **_ITERATIVE,
         ),
         _own(

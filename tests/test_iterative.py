@@ -119,7 +119,8 @@ def test_fused_apgd_step_kernel_matches_the_core(m):
 
 
 @pytest.mark.parametrize("scaling", ["block", "contact"])
-def test_apgd_incremental_gradient_matches_a_fresh_one(packings, scaling):
+@pytest.mark.parametrize("operator", ["auto", "csr"])
+def test_apgd_incremental_gradient_matches_a_fresh_one(packings, scaling, operator):
     # g(y + d) = g(y) + S W S d, with and without a Delassus shift.
     from solvers.apgd_ import _ScaledDual, component_scaling
 
@@ -127,10 +128,11 @@ def test_apgd_incremental_gradient_matches_a_fresh_one(packings, scaling):
         problem = packings["box-3d"]
         problem = dataclasses.replace(problem, delassus_shift=shift)
         s = component_scaling(problem, scaling)
-        scaled = _ScaledDual(problem, s)
+        scaled = _ScaledDual(problem, s, operator)
+        assert scaled.operator == ("blocks" if operator == "auto" else "csr")
         rng = np.random.default_rng(3)
         y, d = rng.standard_normal((2, problem.nc, problem.contact_dim))
-        z = np.empty(scaled.HT.shape[0])
+        z = np.empty(scaled.ndof)
         curvature = scaled.curvature(d, z, float(np.sum(d * d)))
         assert curvature == pytest.approx(float(np.sum(d * scaled.product(d))), rel=1e-12)
         out = np.empty_like(y)
@@ -310,3 +312,85 @@ def test_time_limit(name, packings):
     sol = solvers.solve(problem, name, tol=1e-14, time_limit=1e-6)
     assert sol.status == "time_limit"
     _assert_in_cones(problem, sol.p)
+
+
+# -- the Jacobian by contact blocks ----------------------------------------------
+def _scene_problem(dim: int, mu: float, steps: int) -> cocd.ConicProblem:
+    """A collapsing column's next problem: grain-grain and grain-bed contacts."""
+    scene = cocd.builders.column_collapse(dim, n_grains=200 if dim == 2 else 300, mu=mu)
+    dt = 1e-3 if dim == 2 else 1e-2
+    stepper = Stepper(scene, dt, solver="clarabel", tol=1e-8)
+    stepper.run(steps)
+    return cocd.assemble(scene, cocd.detect_contacts(scene), dt)
+
+
+@pytest.mark.parametrize("dim, mu", [(2, 0.3), (2, 0.0), (3, 0.3), (3, 0.0)])
+def test_contact_blocks_give_the_csr_products(dim, mu):
+    """A scene's Jacobian, scaled by rows as apgd scales it, is read as blocks whose
+    products are the CSR ones to rounding, on one thread or in per-thread shares."""
+    import scipy.sparse as sp
+
+    from solvers._blocks import contact_blocks
+    from solvers.apgd_ import _per_grain, component_scaling
+
+    problem = _scene_problem(dim, mu, steps=5)
+    m = problem.contact_dim
+    H = sp.csr_matrix(sp.diags(component_scaling(problem, "block").reshape(-1)) @ problem.H)
+    blocks = contact_blocks(H, m, dim, _per_grain(problem))
+    assert blocks is not None
+    assert (blocks.first[:, 0] >= 0).all() and (blocks.first[:, 1] < 0).any()  # bed contacts
+    rng = np.random.default_rng(5)
+    p, base = rng.standard_normal((2, H.shape[0]))
+    z, scale = rng.standard_normal(H.shape[1]), 1.0 / problem.mass
+    ht = np.empty(H.shape[1])
+    blocks.rmatvec(p, ht)
+    np.testing.assert_allclose(ht, H.T @ p, rtol=1e-13, atol=1e-13 * np.abs(H.T @ p).max())
+    out = np.empty(H.shape[0])
+    blocks.matvec_scaled_add(scale, z, base, out)
+    expected = base + H @ (scale * z)
+    np.testing.assert_allclose(out, expected, rtol=1e-13, atol=1e-13 * np.abs(expected).max())
+    blocks._buffers = np.zeros((3, H.shape[1]))  # as on three threads
+    shared = np.empty(H.shape[1])
+    blocks.rmatvec(p, shared)
+    np.testing.assert_allclose(shared, ht, rtol=1e-13, atol=1e-13 * np.abs(ht).max())
+
+
+def test_a_jacobian_without_the_block_structure_stays_csr():
+    """Three grains in a contact, a second grain's entry that is not the first's with
+    the sign of a translation, or an entry missing: no blocks."""
+    import scipy.sparse as sp
+
+    from solvers._blocks import contact_blocks
+
+    problem = _scene_problem(2, 0.3, steps=2)
+    H = sp.csr_matrix(problem.H)
+    assert contact_blocks(H, 2, 2, 3) is not None
+    pair = np.flatnonzero(np.diff(H.indptr) == 6)[0]  # a row on two grains
+    lo = H.indptr[pair]
+    flipped = H.copy()
+    flipped.data[lo + 3] = -flipped.data[lo + 3]  # the second grain's first entry
+    assert contact_blocks(flipped, 2, 2, 3) is None
+    missing = H.tolil()
+    missing[pair, H.indices[lo + 3]] = 0.0
+    assert contact_blocks(sp.csr_matrix(missing), 2, 2, 3) is None
+    grains = {H.indices[lo] // 3, H.indices[lo + 3] // 3}
+    other = next(g for g in range(H.shape[1] // 3) if g not in grains)
+    third = H.tolil()
+    third[pair, 3 * other] = 1.0  # a grain neither of the pair
+    assert contact_blocks(sp.csr_matrix(third), 2, 2, 3) is None
+    assert contact_blocks(H, 2, 2, 4) is None  # unknowns not in blocks of 4
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_apgd_through_blocks_answers_as_through_csr(dim):
+    problem = _scene_problem(dim, 0.3, steps=20 if dim == 2 else 3)
+    fast = solvers.solve(problem, "apgd", tol=TOL)
+    plain = solvers.solve(problem, "apgd", tol=TOL, operator="csr")
+    assert fast.extras["operator"] == "blocks" and plain.extras["operator"] == "csr"
+    assert fast.status is plain.status is solvers.Status.OPTIMAL
+    assert ccp_residual(problem, fast.p) <= TOL
+    assert abs(fast.iterations - plain.iterations) <= max(2, plain.iterations // 10)
+    scale = np.abs(plain.p).max()
+    np.testing.assert_allclose(fast.p, plain.p, atol=1e-5 * scale)
+    with pytest.raises(ProblemError, match="apgd: operator must be one of auto, csr, got 'x'"):
+        solvers.solve(problem, "apgd", tol=TOL, operator="x")

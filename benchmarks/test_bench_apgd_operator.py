@@ -1,0 +1,75 @@
+"""pytest-benchmark: one APGD solve on a step of a collapsing 3D column, with the
+products through the Jacobian's contact blocks (``operator="auto"``) and in CSR.
+
+The step is that of ``test_bench_detection.py``: the seed's 3D column (lattice on a
+rough bed of fixed grains, 20 cm channel, mu = 0.3) with a mid-flow velocity field
+at the seed's ``dt = 1e-2`` s, whose contacts, margins included, number about seven
+per sphere. Each solve makes ``ITERATIONS`` iterations (the time per iteration does
+not depend on how far the answer is; the iterations to a tolerance do not depend
+on the operator). ``benchmark.extra_info`` records the grains, the contacts and the
+seconds per iteration. ``COCD_BENCH_SPHERES`` sets the column's size (default
+10 000; the seed's is 112 459).
+
+    pytest benchmarks/test_bench_apgd_operator.py --benchmark-enable
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+import pytest
+
+import solvers
+from cocd.builders import column_collapse
+from cocd.contacts import detect_contacts
+from cocd.problem import ConicProblem, assemble
+
+#: Spheres in the column.
+N = int(os.environ.get("COCD_BENCH_SPHERES", "10000"))
+#: Time step (s), the seed's in 3D.
+DT = 1e-2
+#: Iterations per solve.
+ITERATIONS = 50
+
+pytestmark = pytest.mark.skipif("apgd" not in solvers.available(), reason="apgd needs numba")
+
+
+@pytest.fixture(scope="module")
+def falling_step() -> ConicProblem:
+    scene = column_collapse(3, n_grains=N, width=0.2, bed="rough", mu=0.3)
+    x = scene.positions
+    height = (x[:, 2] - x[:, 2].min()) / np.ptp(x[:, 2])
+    rng = np.random.default_rng(0)
+    v = np.zeros_like(x)
+    v[:, 0] = 0.8 * height  # spreading away from the back wall
+    v[:, 2] = -1.2 * height  # falling
+    v += rng.normal(scale=0.05, size=v.shape)
+    v[scene.fixed] = 0.0
+    scene.velocities[:] = v
+    contacts = detect_contacts(scene, velocities=v, dt=DT)
+    return assemble(scene, contacts, DT)
+
+
+@pytest.mark.benchmark(group="apgd-3d-column")
+@pytest.mark.parametrize("operator", ["auto", "csr"])
+def test_apgd_iterations_on_a_falling_column(
+    benchmark: Any, falling_step: ConicProblem, operator: str
+):
+    problem = falling_step
+    solvers.solve(problem, "apgd", tol=1e-12, max_iter=2, operator=operator)  # compiled
+    solution = benchmark.pedantic(
+        solvers.solve,
+        args=(problem, "apgd"),
+        kwargs=dict(tol=1e-12, max_iter=ITERATIONS, operator=operator),
+        rounds=3,
+        iterations=1,
+    )
+    assert solution.iterations == ITERATIONS
+    assert solution.extras["operator"] == ("blocks" if operator == "auto" else "csr")
+    benchmark.extra_info.update(
+        N=problem.mass.size // 6,
+        Nc=problem.nc,
+        s_per_iteration=solution.solve_time / solution.iterations,
+    )
