@@ -493,6 +493,12 @@ def _is_member(keys: IntArray, sorted_keys: IntArray) -> NDArray[np.bool_]:
     return np.asarray(sorted_keys[pos] == keys)
 
 
+def unknowns_per_grain(dim: int, frictionless: bool) -> int:
+    """Unknowns per free grain: ``dim`` translations, then the rotations (1 in 2D, 3 in
+    3D) unless the scene is frictionless."""
+    return dim if frictionless else (3 if dim == 2 else 6)
+
+
 def dof_layout(scene: Scene, frictionless: bool) -> tuple[IntArray, int]:
     """Map each grain to the first of its unknowns.
 
@@ -504,8 +510,7 @@ def dof_layout(scene: Scene, frictionless: bool) -> tuple[IntArray, int]:
         Unknowns per free grain: d translations, then the rotations (1 in 2D,
         3 in 3D) unless the scene is frictionless.
     """
-    d = scene.dim
-    per_grain = d if frictionless else (3 if d == 2 else 6)
+    per_grain = unknowns_per_grain(scene.dim, frictionless)
     first = np.full(scene.n_grains, -1, dtype=np.int64)
     free = scene.free
     first[free] = np.arange(int(free.sum()), dtype=np.int64) * per_grain

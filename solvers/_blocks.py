@@ -12,12 +12,15 @@ contiguously: on a mid-flow step of the seed's 3D column (694 571 contacts, one
 thread) ``H x`` took 0.019 s against 0.099 s in CSR and ``H' p`` 0.023 s against
 0.086 s. The kernels are unrolled for 3D and 2D contacts with friction.
 
-:func:`contact_blocks` reads the blocks off any CSR matrix and checks every
-stored entry against them, so that the block products equal the CSR ones
-exactly (to the order of the sums); a matrix without this structure (an
-external problem, a layout other than cocd's) gives None, and the caller keeps
-CSR. Rows are scaled as the matrix is: the blocks of ``diag(s) H`` are read from
-``diag(s) H``.
+:func:`contact_blocks` reads the blocks off any CSR matrix: the rows of each
+contact's first grain give them, and every column of its second grain's rows is
+compared with them (stored zeros and duplicates summed, as CSR sums them), so
+that the block products equal the CSR ones exactly (to the order of the sums).
+A matrix without this structure (an external problem, a layout other than
+cocd's) gives None, and the caller keeps CSR. cocd's Jacobians have it because
+their rotational unknowns are spin times radius, so the rotational rows,
+``-(n x t)``, are the same for both grains. Rows are scaled as the matrix is:
+the blocks of ``diag(s) H`` are read from ``diag(s) H``.
 """
 
 from __future__ import annotations
@@ -33,14 +36,18 @@ from solvers.base import FloatArray
 
 __all__ = ["ContactBlocks", "contact_blocks"]
 
+#: Most shares of the contacts scattered at once by ``H' p``.
+MAX_SHARES = 8
 
-@dataclass
+
+@dataclass(eq=False)
 class ContactBlocks:
     """``H`` of shape ``(m nc, ndof)`` as per-contact blocks (see the module).
 
     ``T``: ``(nc, m, d)``, on the translations of grain ``first[a, 0]`` (plus) and
     of ``first[a, 1]`` (minus); ``R``: ``(nc, m, r)``, on the rotations of both;
-    ``first``: ``(nc, 2)``, each grain's first unknown, -1 for none.
+    ``first``: ``(nc, 2)``, the first column of each grain's block of ``per_grain``
+    unknowns, -1 for none.
     """
 
     T: FloatArray
@@ -50,8 +57,8 @@ class ContactBlocks:
 
     def __post_init__(self) -> None:
         # On several threads, H' p scatters into private copies of the result, one per
-        # thread, then sums them.
-        threads = numba.get_num_threads()
+        # thread (at most MAX_SHARES: their sum is read at every product), then sums them.
+        threads = min(numba.get_num_threads(), MAX_SHARES)
         self._buffers = np.zeros((threads, self.ndof)) if threads > 1 else None
         self._scaled = np.empty(self.ndof)
 
@@ -78,24 +85,31 @@ def contact_blocks(H: sp.csr_matrix, m: int, d: int, per_grain: int) -> ContactB
     if m < 1 or rows % m or not 0 < d <= per_grain or ndof % per_grain:
         return None
     H = sp.csr_matrix(H)
-    if not H.has_canonical_format:
-        H = H.copy()
-        H.sum_duplicates()
     nc = rows // m
     T = np.zeros((nc, m, d))
     R = np.zeros((nc, m, per_grain - d))
     first = np.full((nc, 2), -1, dtype=np.int64)
     ok = _read_blocks(
-        H.indptr.astype(np.int64), H.indices.astype(np.int64), H.data, per_grain, T, R, first
+        H.indptr.astype(np.int64, copy=False),
+        H.indices.astype(np.int64, copy=False),
+        H.data.astype(np.float64, copy=False),
+        per_grain,
+        T,
+        R,
+        first,
     )
     return ContactBlocks(T, R, first, ndof) if ok else None
 
 
 @njit(cache=True)
 def _read_blocks(indptr, indices, data, per_grain, T, R, first):  # pragma: no cover - compiled
-    """Fill ``T``, ``R``, ``first`` from the CSR arrays; False as soon as an entry does
-    not fit (a third grain, a second grain's entry not ``-T`` or ``R``, or missing)."""
+    """Fill ``T``, ``R``, ``first`` from the CSR arrays; False as soon as a row does not
+    fit: a third grain, or a second grain whose row is not the first's with the
+    translations negated (every column compared, stored zeros and duplicates summed
+    as CSR sums them)."""
     nc, m, d = T.shape
+    lo_v = np.zeros(per_grain)
+    hi_v = np.zeros(per_grain)
     for a in range(nc):
         lo = -1
         hi = -1
@@ -117,27 +131,23 @@ def _read_blocks(indptr, indices, data, per_grain, T, R, first):  # pragma: no c
         first[a, 1] = hi
         for k in range(m):
             row = a * m + k
-            n_lo = 0
-            n_hi = 0
+            lo_v[:] = 0.0
+            hi_v[:] = 0.0
             for idx in range(indptr[row], indptr[row + 1]):
                 col = indices[idx]
                 if col - col % per_grain == lo:
-                    c = col - lo
-                    if c < d:
-                        T[a, k, c] = data[idx]
-                    else:
-                        R[a, k, c - d] = data[idx]
-                    n_lo += 1
-            for idx in range(indptr[row], indptr[row + 1]):
-                col = indices[idx]
-                if col - col % per_grain == hi:
-                    c = col - hi
-                    expect = -T[a, k, c] if c < d else R[a, k, c - d]
-                    if data[idx] != expect:
+                    lo_v[col - lo] += data[idx]
+                else:
+                    hi_v[col - hi] += data[idx]
+            for c in range(per_grain):
+                if c < d:
+                    T[a, k, c] = lo_v[c]
+                    if hi >= 0 and hi_v[c] != -lo_v[c]:
                         return False
-                    n_hi += 1
-            if hi >= 0 and n_hi != n_lo:
-                return False
+                else:
+                    R[a, k, c - d] = lo_v[c]
+                    if hi >= 0 and hi_v[c] != lo_v[c]:
+                        return False
     return True
 
 

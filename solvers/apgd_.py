@@ -94,6 +94,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse as sp
 
+from cocd.contacts import unknowns_per_grain
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
 from solvers._apgd_kernels import (
@@ -243,13 +244,6 @@ def apgd_solve_problem(
     )
 
 
-def _per_grain(problem: ConicProblem) -> int:
-    """Unknowns per grain in a scene's problem (:func:`cocd.contacts.dof_layout`): the
-    translations, then the rotations unless frictionless."""
-    d = problem.dim
-    return d if problem.contact_dim == 1 else (3 if d == 2 else 6)
-
-
 def component_scaling(problem: ConicProblem, scaling: str) -> FloatArray:
     """The scale ``s`` of each impulse component, shape ``(nc, m)``: ``p = s q``.
 
@@ -294,9 +288,14 @@ class _ScaledDual:
         H = sp.csr_matrix(sp.diags(rows) @ problem.H)
         self.ndof = H.shape[1]
         self.blocks = (
-            contact_blocks(H, m, problem.dim, _per_grain(problem)) if operator == "auto" else None
+            contact_blocks(H, m, problem.dim, unknowns_per_grain(problem.dim, m == 1))
+            if operator == "auto"
+            else None
         )
         self.operator = "blocks" if self.blocks is not None else "csr"
+        # S H and its transpose in CSR, when the blocks do not stand for them.
+        self.H: sp.csr_matrix | None = None
+        self.HT: sp.csr_matrix | None = None
         if self.blocks is None:
             self.H = H
             self.HT = sp.csr_matrix(H.T)
@@ -334,6 +333,7 @@ class _ScaledDual:
         if self.blocks is not None:
             self.blocks.rmatvec(q.reshape(-1), z)
         else:
+            assert self.HT is not None
             csr_matvec(self.HT.indptr, self.HT.indices, self.HT.data, q.reshape(-1), z)
 
     def _apply_h(self, z: FloatArray, base: FloatArray, out: FloatArray) -> None:
@@ -342,6 +342,7 @@ class _ScaledDual:
             self.blocks.matvec_scaled_add(self.inv_mass, z, base, out.reshape(-1))
         else:
             H = self.H
+            assert H is not None
             csr_scaled_matvec_add(
                 H.indptr, H.indices, H.data, self.inv_mass, z, base, out.reshape(-1)
             )

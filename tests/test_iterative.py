@@ -330,13 +330,14 @@ def test_contact_blocks_give_the_csr_products(dim, mu):
     products are the CSR ones to rounding, on one thread or in per-thread shares."""
     import scipy.sparse as sp
 
+    from cocd.contacts import unknowns_per_grain
     from solvers._blocks import contact_blocks
-    from solvers.apgd_ import _per_grain, component_scaling
+    from solvers.apgd_ import component_scaling
 
     problem = _scene_problem(dim, mu, steps=5)
     m = problem.contact_dim
     H = sp.csr_matrix(sp.diags(component_scaling(problem, "block").reshape(-1)) @ problem.H)
-    blocks = contact_blocks(H, m, dim, _per_grain(problem))
+    blocks = contact_blocks(H, m, dim, unknowns_per_grain(dim, m == 1))
     assert blocks is not None
     assert (blocks.first[:, 0] >= 0).all() and (blocks.first[:, 1] < 0).any()  # bed contacts
     rng = np.random.default_rng(5)
@@ -349,10 +350,23 @@ def test_contact_blocks_give_the_csr_products(dim, mu):
     blocks.matvec_scaled_add(scale, z, base, out)
     expected = base + H @ (scale * z)
     np.testing.assert_allclose(out, expected, rtol=1e-13, atol=1e-13 * np.abs(expected).max())
-    blocks._buffers = np.zeros((3, H.shape[1]))  # as on three threads
-    shared = np.empty(H.shape[1])
-    blocks.rmatvec(p, shared)
-    np.testing.assert_allclose(shared, ht, rtol=1e-13, atol=1e-13 * np.abs(ht).max())
+    for buffers in (None, np.zeros((3, H.shape[1]))):  # on one thread, in three shares
+        blocks._buffers = buffers
+        again = np.empty(H.shape[1])
+        blocks.rmatvec(p, again)
+        np.testing.assert_allclose(again, ht, rtol=1e-13, atol=1e-13 * np.abs(ht).max())
+    # The grains of every contact swapped (the free grain on the minus side, the first
+    # grain of a pair on it too): the same matrix up to its layout, read as exactly.
+    nc, per_grain = problem.nc, unknowns_per_grain(dim, m == 1)
+    perm = np.arange(H.shape[1]).reshape(-1, per_grain)[::-1].reshape(-1)
+    swapped = sp.csr_matrix(H[:, perm])
+    flipped = contact_blocks(swapped, m, dim, per_grain)
+    assert flipped is not None
+    pairs = blocks.first[:, 1] >= 0
+    np.testing.assert_array_equal(flipped.T[pairs], -blocks.T[pairs])  # read from grain j
+    flipped.matvec_scaled_add(scale[perm], z[perm], base, out)
+    np.testing.assert_allclose(out, expected, rtol=1e-13, atol=1e-13 * np.abs(expected).max())
+    assert nc == blocks.T.shape[0]
 
 
 def test_a_jacobian_without_the_block_structure_stays_csr():
@@ -378,12 +392,20 @@ def test_a_jacobian_without_the_block_structure_stays_csr():
     third = H.tolil()
     third[pair, 3 * other] = 1.0  # a grain neither of the pair
     assert contact_blocks(sp.csr_matrix(third), 2, 2, 3) is None
-    assert contact_blocks(H, 2, 2, 4) is None  # unknowns not in blocks of 4
+    rotation = H.copy()  # the second grain's rotational entry negated
+    rotation.data[lo + 5] = -rotation.data[lo + 5]
+    assert contact_blocks(rotation, 2, 2, 3) is None
+    zero = sp.csr_matrix(  # an entry on one grain, a stored zero on the other
+        (np.array([1.0, 0.0]), np.array([0, 4]), np.array([0, 2, 2])), shape=(2, 6)
+    )
+    assert contact_blocks(zero, 2, 2, 3) is None
+    assert contact_blocks(H, 2, 2, 4) is None  # 600 unknowns, not in blocks of 4 here
+    assert contact_blocks(H[:, :-1], 2, 2, 3) is None  # not a whole number of grains
 
 
-@pytest.mark.parametrize("dim", [2, 3])
-def test_apgd_through_blocks_answers_as_through_csr(dim):
-    problem = _scene_problem(dim, 0.3, steps=20 if dim == 2 else 3)
+@pytest.mark.parametrize("dim, mu", [(2, 0.3), (3, 0.3), (3, 0.0)])
+def test_apgd_through_blocks_answers_as_through_csr(dim, mu):
+    problem = _scene_problem(dim, mu, steps=20 if dim == 2 else 3)
     fast = solvers.solve(problem, "apgd", tol=TOL)
     plain = solvers.solve(problem, "apgd", tol=TOL, operator="csr")
     assert fast.extras["operator"] == "blocks" and plain.extras["operator"] == "csr"
