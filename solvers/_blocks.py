@@ -8,9 +8,9 @@ and the two blocks share their numbers: ``(+T_a, R_a)`` on one grain and
 ``R_a`` its ``(m, r)`` rotational rows. Stored so (``T``, ``R`` and each
 contact's two first unknowns), a product reads 18 numbers per 3D contact where
 CSR reads 30 values and 30 column indices, and gathers each grain's unknowns
-contiguously: on a mid-flow step of the seed's 3D column (694 571 contacts, one
-thread) ``H x`` took 0.019 s against 0.099 s in CSR and ``H' p`` 0.023 s against
-0.086 s. The kernels are unrolled for 3D and 2D contacts with friction.
+contiguously. The kernels are unrolled for 3D and 2D contacts with friction; what
+this gains an APGD iteration is measured by
+``benchmarks/test_bench_apgd_operator.py``.
 
 :func:`contact_blocks` reads the blocks off any CSR matrix: the rows of each
 contact's first grain give them, and every column of its second grain's rows is
