@@ -201,12 +201,14 @@ def apgd_solve_problem(
         if k % check_every == 0 or k == cap:
             r = ratio(math.sqrt(natural_map_sq_par(x_new, g_new, s, rho, mu_true)), rb_norm)
             checks.add(k, r)
-            if r < best_r:
-                best_x, best_r = x_new.copy(), r
+            if r < best_r:  # into the same buffer: no fresh pages to fault in
+                np.copyto(best_x, x_new)
+                best_r = r
             if r <= tol:
                 exact = ccp_residual(problem, s * x_new)
                 if exact <= tol:
-                    best_x, best_r = x_new.copy(), exact
+                    np.copyto(best_x, x_new)
+                    best_r = exact
                     status, native = Status.OPTIMAL, "converged"
                     break
                 # The test may have read a drifted gradient.
