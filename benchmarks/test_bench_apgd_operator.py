@@ -18,11 +18,10 @@ from __future__ import annotations
 import os
 from typing import Any
 
-import numpy as np
 import pytest
+from _scenes import falling_column
 
 import solvers
-from cocd.builders import column_collapse
 from cocd.contacts import detect_contacts
 from cocd.problem import ConicProblem, assemble
 
@@ -38,18 +37,9 @@ pytestmark = pytest.mark.skipif("apgd" not in solvers.available(), reason="apgd 
 
 @pytest.fixture(scope="module")
 def falling_step() -> ConicProblem:
-    scene = column_collapse(3, n_grains=N, width=0.2, bed="rough", mu=0.3)
-    x = scene.positions
-    height = (x[:, 2] - x[:, 2].min()) / np.ptp(x[:, 2])
-    rng = np.random.default_rng(0)
-    v = np.zeros_like(x)
-    v[:, 0] = 0.8 * height  # spreading away from the back wall
-    v[:, 2] = -1.2 * height  # falling
-    v += rng.normal(scale=0.05, size=v.shape)
-    v[scene.fixed] = 0.0
+    scene, v = falling_column(N)
     scene.velocities[:] = v
-    contacts = detect_contacts(scene, velocities=v, dt=DT)
-    return assemble(scene, contacts, DT)
+    return assemble(scene, detect_contacts(scene, velocities=v, dt=DT), DT)
 
 
 @pytest.mark.benchmark(group="apgd-3d-column")

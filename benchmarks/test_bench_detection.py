@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from _scenes import falling_column
 
-from cocd.builders import column_collapse
 from cocd.contacts import detect_contacts
 from cocd.scene import Scene
 
@@ -27,18 +27,9 @@ N = 10000
 DT = 1e-2
 
 
-@pytest.fixture(scope="module")
-def falling_column() -> tuple[Scene, np.ndarray]:
-    scene = column_collapse(3, n_grains=N, width=0.2, bed="rough", mu=0.3)
-    x = scene.positions
-    height = (x[:, 2] - x[:, 2].min()) / np.ptp(x[:, 2])
-    rng = np.random.default_rng(0)
-    v = np.zeros_like(x)
-    v[:, 0] = 0.8 * height  # spreading away from the back wall
-    v[:, 2] = -1.2 * height  # falling
-    v += rng.normal(scale=0.05, size=v.shape)
-    v[scene.fixed] = 0.0
-    return scene, v
+@pytest.fixture(scope="module", name="falling_column")
+def falling_column_fixture() -> tuple[Scene, np.ndarray]:
+    return falling_column(N)
 
 
 @pytest.mark.benchmark(group="detect-3d-column")
