@@ -101,17 +101,20 @@ def csr_scaled_matvec_add(indptr, indices, data, scale, z, base, out):
 
 
 @njit(cache=True, parallel=True)
-def differences(x_new, x, g_new, g_x, g_y, s, delta, dg):
+def differences(x_new, x, g_new, g_x, g_y, s, delta, dg, rho, mu, with_map):
     """``delta = x_new - x``, ``dg = g_new - g_x``.
 
-    Returns ``(g_x'delta + delta'dg / 2, g_y'delta, max_a s_a |delta_a|_inf)``:
+    Returns ``(g_x'delta + delta'dg / 2, g_y'delta, max_a s_a |delta_a|_inf, map)``:
     the objective's change (exact for a quadratic), the gradient-mapping
-    restart test, and the largest change of an unscaled impulse component
-    (``s`` of shape ``(nc, m)``: impulse ``= s * q`` componentwise).
+    restart test, the largest change of an unscaled impulse component
+    (``s`` of shape ``(nc, m)``: impulse ``= s * q`` componentwise), and, when
+    ``with_map``, :func:`natural_map_sq_par` of ``(x_new, g_new)`` read in the same
+    pass (else 0).
     """
     nc, m = x.shape
     df = 0.0
     gm = 0.0
+    nat = 0.0
     biggest = np.zeros(nc)
     for a in prange(nc):
         part_df = 0.0
@@ -128,8 +131,10 @@ def differences(x_new, x, g_new, g_x, g_y, s, delta, dg):
                 big = abs(dl) * s[a, k]
         df += part_df
         gm += part_gm
+        if with_map:
+            nat += _natural_map_part(x_new, g_new, s, rho, mu, a, m)
         biggest[a] = big
-    return df, gm, biggest.max() if nc else 0.0
+    return df, gm, biggest.max() if nc else 0.0, nat
 
 
 @njit(cache=True, parallel=True)
@@ -140,6 +145,19 @@ def extrapolate(x_new, delta, g_new, dg, beta, y, g_y):
         for k in range(m):
             y[a, k] = x_new[a, k] + beta * delta[a, k]
             g_y[a, k] = g_new[a, k] + beta * dg[a, k]
+
+
+@njit(cache=True, inline="always")
+def _natural_map_part(q, g, s, rho, mu, a, m):
+    """Contact ``a``'s term of :func:`natural_map_sq_par`."""
+    p0 = s[a, 0] * q[a, 0]
+    p1 = s[a, 1] * q[a, 1] if m > 1 else 0.0
+    p2 = s[a, 2] * q[a, 2] if m > 2 else 0.0
+    x0 = p0 - rho[a] * g[a, 0] / s[a, 0]
+    x1 = p1 - rho[a] * g[a, 1] / s[a, 1] if m > 1 else 0.0
+    x2 = p2 - rho[a] * g[a, 2] / s[a, 2] if m > 2 else 0.0
+    x0, x1, x2 = _project3(x0, x1, x2, mu[a], m)
+    return (p0 - x0) ** 2 + (p1 - x1) ** 2 + (p2 - x2) ** 2
 
 
 @njit(cache=True, parallel=True)
@@ -153,12 +171,5 @@ def natural_map_sq_par(q, g, s, rho, mu):
     nc, m = q.shape
     total = 0.0
     for a in prange(nc):
-        p0 = s[a, 0] * q[a, 0]
-        p1 = s[a, 1] * q[a, 1] if m > 1 else 0.0
-        p2 = s[a, 2] * q[a, 2] if m > 2 else 0.0
-        x0 = p0 - rho[a] * g[a, 0] / s[a, 0]
-        x1 = p1 - rho[a] * g[a, 1] / s[a, 1] if m > 1 else 0.0
-        x2 = p2 - rho[a] * g[a, 2] / s[a, 2] if m > 2 else 0.0
-        x0, x1, x2 = _project3(x0, x1, x2, mu[a], m)
-        total += (p0 - x0) ** 2 + (p1 - x1) ** 2 + (p2 - x2) ** 2
+        total += _natural_map_part(q, g, s, rho, mu, a, m)
     return total

@@ -189,17 +189,24 @@ def apgd_solve_problem(
             L *= 2.0
             backtracks += 1
         scaled.update_gradient(g_y, zd, d, g_new)  # g(x_new) = g(y) + S W S d
-        df, g_map, biggest = differences(x_new, x, g_new, g_x, g_y, s, delta, dg)
-        if k % RESYNC_EVERY == 0:
+        check = k % check_every == 0 or k == cap
+        resync = k % RESYNC_EVERY == 0
+        # The natural map is summed in the same pass, unless the gradient is resynced.
+        df, g_map, biggest, nat = differences(
+            x_new, x, g_new, g_x, g_y, s, delta, dg, rho, mu_true, check and not resync
+        )
+        if resync:
             g_new[:] = scaled.gradient(x_new)
             dg[:] = scaled.product(delta)
+            if check:
+                nat = natural_map_sq_par(x_new, g_new, s, rho, mu_true)
         dp_history.append(biggest / impulse_scale)
         l_history.append(L)
         if not math.isfinite(df):
             status, native = Status.ERROR, "non-finite iterate"
             break
-        if k % check_every == 0 or k == cap:
-            r = ratio(math.sqrt(natural_map_sq_par(x_new, g_new, s, rho, mu_true)), rb_norm)
+        if check:
+            r = ratio(math.sqrt(nat), rb_norm)
             checks.add(k, r)
             if r < best_r:  # into the same buffer: no fresh pages to fault in
                 np.copyto(best_x, x_new)

@@ -416,3 +416,20 @@ def test_apgd_through_blocks_answers_as_through_csr(dim, mu):
     np.testing.assert_allclose(fast.p, plain.p, atol=1e-5 * scale)
     with pytest.raises(ProblemError, match="apgd: operator must be one of auto, csr, got 'x'"):
         solvers.solve(problem, "apgd", tol=TOL, operator="x")
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_apgd_differences_sum_the_natural_map_in_the_same_pass(m):
+    from solvers._apgd_kernels import differences, natural_map_sq_par
+
+    rng = np.random.default_rng(6)
+    nc = 500
+    x_new, x, g_new, g_x, g_y = rng.standard_normal((5, nc, m))
+    s, rho, mu = rng.uniform(0.5, 2.0, (nc, m)), rng.uniform(0.5, 2.0, nc), rng.uniform(0, 1, nc)
+    delta, dg = np.empty((2, nc, m))
+    *parts, nat = differences(x_new, x, g_new, g_x, g_y, s, delta, dg, rho, mu, True)
+    assert nat == pytest.approx(natural_map_sq_par(x_new, g_new, s, rho, mu), rel=1e-12)
+    *same, none = differences(x_new, x, g_new, g_x, g_y, s, delta, dg, rho, mu, False)
+    assert none == 0.0 and same == parts
+    np.testing.assert_array_equal(delta, x_new - x)
+    assert parts[0] == pytest.approx(float(np.sum(g_x * delta + 0.5 * delta * (g_new - g_x))))
