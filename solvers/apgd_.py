@@ -40,7 +40,7 @@ operations they replace. A scene's ``H`` is multiplied through its contact
 blocks (:mod:`solvers._blocks`: each contact's frame and rotational rows, read
 once instead of 30 CSR entries and indices): on a mid-flow step of the seed's
 3D column at its size (112 459 spheres, 1 423 363 contacts, one thread) an
-iteration took 0.220 s against 0.385 s with both products in CSR
+iteration took 0.182 s against 0.362 s with both products in CSR
 (``COCD_BENCH_SPHERES=112459 pytest benchmarks/test_bench_apgd_operator.py
 --benchmark-enable``). ``H`` without that structure (an external problem) stays
 in CSR. The starting ``L`` is a 10-step power iteration on
