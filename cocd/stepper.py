@@ -307,10 +307,11 @@ class Stepper:
         energy_before = kinetic_energy(scene)
         reach: FloatArray | None = None
         redos, redo_time = 0, 0.0
+        warm = self.previous
         while True:
             attempt = time.perf_counter()
             contacts, problem, solution, answered, failures, res, detect_time = self._solve(
-                k, forces, torques, free_velocity, reach, energy_before
+                k, forces, torques, free_velocity, reach, energy_before, warm
             )
             check = time.perf_counter()
             pen = penetration(scene, contacts, saved[0])
@@ -335,6 +336,9 @@ class Stepper:
                 self._restore(saved, t_start)
                 redos += 1
                 redo_time += time.perf_counter() - attempt
+                # The step taken again starts from this attempt's impulses: its contacts
+                # are the same but for the few the wider margin adds.
+                warm = (contacts.keys, solution.p)
                 continue
             message = f"{where}: {pen.describe(scene)}, above {self.penetration_tol:g}"
             if self.on_penetration == "warn":
@@ -394,11 +398,14 @@ class Stepper:
         free_velocity: FloatArray,
         reach: FloatArray | None,
         energy_before: float,
+        warm: tuple[NDArray[np.int64], FloatArray] | None,
     ) -> tuple[ContactSet, ConicProblem, solvers.Solution, str, list[str], Residuals, float]:
         """Detect, assemble, solve (along the fallback chain) and move the grains.
 
-        Returns the contacts, the problem, the accepted answer, the backend that
-        gave it, the failures before it, its residuals and the detection time.
+        ``warm``: contact keys and impulses to warm-start from (the last step's, or a
+        redone attempt's), when :attr:`warm_start`. Returns the contacts, the problem,
+        the accepted answer, the backend that gave it, the failures before it, its
+        residuals and the detection time.
         """
         scene = self.scene
         start = time.perf_counter()
@@ -408,8 +415,7 @@ class Stepper:
         problem = assemble(scene, contacts, self.dt, forces=forces, torques=torques)
         detect_time = time.perf_counter() - start
 
-        previous = self.previous if self.warm_start else None
-        p0 = warm_start(previous, contacts.keys, problem.contact_dim)
+        p0 = warm_start(warm if self.warm_start else None, contacts.keys, problem.contact_dim)
         where = f"step {k} (t = {scene.time + self.dt:.6g} s, {problem.nc} contacts)"
         solution, name, failures, res = solve_chain(
             problem,

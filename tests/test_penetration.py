@@ -253,3 +253,26 @@ def test_run_file_and_stats_record_the_penetration(tmp_path):
     with RunFile(summary.path) as rf:
         stats = rf.stats()
     assert len(stats) == 6 and stats.penetration.iloc[4:].notna().all()
+
+
+def test_a_step_taken_again_starts_from_the_failed_attempts_impulses(monkeypatch):
+    """The redo warm-starts from the attempt it replaces (its contacts but for the pair
+    the wider margin adds), not from the step before (none here)."""
+    import cocd.stepper as stepper_module
+
+    seen = []
+    real = stepper_module.warm_start
+
+    def spy(previous, keys, contact_dim):
+        seen.append((previous, keys.copy()))
+        return real(previous, keys, contact_dim)
+
+    monkeypatch.setattr(stepper_module, "warm_start", spy)
+    stepper = cocd.Stepper(three_in_a_line(), DT, solver="apgd", tol=1e-10)
+    record = stepper.step()
+    assert record.redos == 1 and record.penetration <= 1e-6
+    (first, first_keys), (again, again_keys) = seen
+    assert first is None  # the first step of the run
+    assert again is not None and np.array_equal(again[0], first_keys)
+    assert again[1].shape == (first_keys.size, 2) and np.abs(again[1]).max() > 0.0
+    assert set(first_keys) < set(again_keys)  # the pair that went through is added
