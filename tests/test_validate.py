@@ -529,6 +529,26 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
     (rest,) = [line for line in lines if "2 of 4 runs kept" in line]
     assert "kept runs' rate" not in rest
+    # A second, finer size beside the first, whose runs are read back: one table and
+    # one ensemble over both sizes, coarsest first, each size's grains against the seed's.
+    both = dims.STUDY(out=tmp_path, progress=_quiet([]), **{**kwargs, "n2d": (150, 100),
+                      "n3d": (500, 300)})  # fmt: skip
+    assert list(both.n_3d.unique()) == [300, 500] and list(both.n_2d.unique()) == [100, 150]
+    pd.testing.assert_frame_equal(
+        both[both.n_3d == 300].reset_index(drop=True).drop(columns="grain_scale"),
+        table.drop(columns="grain_scale"),
+    )
+    assert np.allclose(both.grain_scale, (dims.SEED_N3D / both.n_3d) ** (1 / 3))
+    fine = both[both.n_3d == 500]
+    assert (fine.d_3d_mm < both[both.n_3d == 300].d_3d_mm.min()).all()
+    ensemble = pd.read_csv(tmp_path / "dims_ensemble.csv")
+    assert len(ensemble) == 8 and list(ensemble.n_3d) == [300] * 4 + [500] * 4
+    row = ensemble[(ensemble.n_3d == 500) & (ensemble.slope_deg == 22.0) & (ensemble.t == 0.3)]
+    assert row.front_ratio.iloc[0] == pytest.approx(
+        fine[(fine.slope_deg == 22.0) & (fine.t == 0.3)].front_ratio.iloc[0]
+    )
+    summary = json.loads((tmp_path / "dims.meta.json").read_text())["summary"]
+    assert "100 discs and 300 spheres" in summary and "150 discs and 500 spheres" in summary
 
 
 def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path, monkeypatch):
@@ -726,6 +746,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["dims", "--slopes", "0,95"], "slopes must be in [0, 90)"),
         (["dims", "--times", "0.405"], "do not fall on whole numbers of 3D steps"),
         (["dims", "--bed-length", "0.1"], "bed_length must exceed"),
+        (["dims", "--n2d", "100,200", "--n3d", "300"], "n2d and n3d pair one size each"),
+        (["dims", "--n2d", "100,100", "--n3d", "300,400"], "n2d repeats a count"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
         (["avalanche", "--width-d", "8"], "width_d must be at least 12 diameters"),
         (["avalanche3d", "--length-d", "8"], "length_d must be at least 12 diameters"),
