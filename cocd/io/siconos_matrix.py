@@ -258,7 +258,8 @@ def _read_sparse_block(rd: Reader, name: str, size0: int, size1: int) -> Matrix:
     brow = np.repeat(np.arange(filled1 - 1), np.diff(ptr))
     key = brow * nb1 + bcol
     order = np.argsort(key, kind="stable")
-    twice = np.flatnonzero(key[order][1:] == key[order][:-1])
+    ordered = key[order]
+    twice = np.flatnonzero(ordered[1:] == ordered[:-1])
     if twice.size:  # (a sort: np.unique hashes, far slower on many distinct keys)
         k = int(order[twice[0]])
         raise rd.error(f"{what}: block ({int(brow[k])}, {int(bcol[k])}) is stored twice", at + k)
