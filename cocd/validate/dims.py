@@ -7,7 +7,9 @@ and 6: 2154 discs, 112 459 spheres in a 20 cm channel, mu = 0.3, dt = 1e-3 s in
 2D and 1e-2 s in 3D). Fronts and profiles are compared at the asked times. The
 seed reads its Fig. 7 as: at t = 1 s the 2D front is about 12 % further than the
 3D one on the horizontal plane and about 32 % further at 22 degrees, the
-lateral walls and the extra freedom of spheres dissipating more in 3D.
+lateral walls and the extra freedom of spheres dissipating more in 3D. Several
+sizes of the column (``--n2d`` and ``--n3d`` paired, equal grains in 2D and 3D) go
+in one table, to see how the comparison moves as the grains approach the seed's.
 
 The 3D runs are long (hours per run at the seed's size on two cores): every
 simulation is a resumable run file, continued from its last frame when the case
@@ -90,8 +92,9 @@ class Settings(CollapseSettings):
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
     """Collapse the seed's column in 2D and in 3D at each slope and compare their fronts.
 
-    Returns the table written to ``dims.csv``: per slope, packing and time, the 2D and
-    3D fronts from the back wall (m and R0) and their ratio.
+    Returns the table written to ``dims.csv``: per size (``n2d`` and ``n3d`` paired),
+    slope, packing and time, the 2D and 3D fronts from the back wall (m and R0) and
+    their ratio.
     """
     sizes = _sizes(cfg.n2d, cfg.n3d)
     width, dt2d, dt3d, bed = base.positive_list(
@@ -118,36 +121,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         for seed in range(seeds):
             for dim, n, dt, frame_dt in ((2, n2, dt2d, frame2d), (3, n3, dt3d, frame3d)):
                 for slope in slopes:
-                    params: dict[str, Any] = {
-                        "dim": dim,
-                        "n_grains": n,
-                        "length": LENGTH,
-                        "height": HEIGHT,
-                        "bed": "rough",
-                        "bed_length": bed,
-                        "slope_deg": slope,
-                        "mu": cfg.mu,
-                    }
-                    if dim == 3:
-                        params["width"] = width
-                    label = f"{dim}d_n{n}_slope{slope:g}_mu{cfg.mu:g}"
-                    if dim == 3:
-                        label += f"_W{width * 100:g}cm"
-                    label += f"_bed{bed:g}m"
                     cases.append((size, seed, slope, dim))
                     jobs.append(
-                        base.collapse_job(
-                            out,
-                            "dims",
-                            label,
-                            seed,
-                            params,
-                            cfg,
-                            what=f"{dim}D, {n} grains, slope {slope:g} deg, dt {dt:g} s",
-                            dt=dt,
-                            frame_dt=frame_dt,
-                            profile_times=[0.0, *times],
-                        )
+                        _job(out, cfg, dim, n, slope, seed, dt, frame_dt, [0.0, *times], width, bed)
                     )
     estimate.announce(
         "dims",
@@ -229,6 +205,50 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         [figure, *files], progress,
     )  # fmt: skip
     return table
+
+
+def _job(
+    out: Path,
+    cfg: Settings,
+    dim: int,
+    n: int,
+    slope: float,
+    seed: int,
+    dt: float,
+    frame_dt: float,
+    profile_times: list[float],
+    width: float,
+    bed: float,
+) -> base.CollapseJob:
+    """Packing ``seed``'s run of the column as ``n`` grains in ``dim`` dimensions on a
+    bed sloping ``slope`` degrees."""
+    params: dict[str, Any] = {
+        "dim": dim,
+        "n_grains": n,
+        "length": LENGTH,
+        "height": HEIGHT,
+        "bed": "rough",
+        "bed_length": bed,
+        "slope_deg": slope,
+        "mu": cfg.mu,
+    }
+    label = f"{dim}d_n{n}_slope{slope:g}_mu{cfg.mu:g}"
+    if dim == 3:
+        params["width"] = width
+        label += f"_W{width * 100:g}cm"
+    label += f"_bed{bed:g}m"
+    return base.collapse_job(
+        out,
+        "dims",
+        label,
+        seed,
+        params,
+        cfg,
+        what=f"{dim}D, {n} grains, slope {slope:g} deg, dt {dt:g} s",
+        dt=dt,
+        frame_dt=frame_dt,
+        profile_times=profile_times,
+    )
 
 
 def _sizes(n2d: Any, n3d: Any) -> list[tuple[int, int]]:
