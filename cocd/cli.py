@@ -341,6 +341,46 @@ def export_vtu_command(
     console.print(f"wrote {', '.join(str(p) for p in paths)} (open them in ParaView)")
 
 
+@export_app.command("fclib")
+def export_fclib_command(
+    run_file: Annotated[Path, typer.Argument(help="A run file (run.h5) of `cocd run`.")],
+    step: Annotated[
+        int | None, typer.Option("--step", help="The step to export (default: the last).")
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Output file (default: step_<STEP>.hdf5 beside RUN_FILE)."),
+    ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace an existing output file.")
+    ] = False,
+) -> None:
+    """One step of a run as an FCLib problem, with its answer: taken again from the frame
+    before it, for `cocd problem solve` or any FCLib reader."""
+    from cocd.runs import export_step
+
+    try:
+        if step is None:
+            from cocd.io.runfile import RunFile
+
+            with RunFile(run_file) as rf:
+                step = len(rf.stats())
+        target = out if out is not None else run_file.parent / f"step_{step:06d}.hdf5"
+        if target.exists() and not force:
+            raise CocdError(f"{target} exists: --force replaces it")
+        writable_file(target, "--out")
+        path, again, recorded = export_step(run_file, step, target)
+    except CocdError as exc:
+        fail(exc)
+        return
+    console.print(
+        f"wrote {path}: step {again.step} (t = {again.t:.6g} s), {again.nc} contacts, "
+        f"{again.solver} {again.iterations} iterations (the run: {recorded.nc} contacts, "
+        f"{recorded.iterations} iterations)",
+        highlight=False,
+    )
+
+
 @app.command("plot")
 def plot_command(
     run_file: Annotated[Path, typer.Argument(help="A run file (run.h5) of `cocd run`.")],

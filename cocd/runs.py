@@ -24,7 +24,15 @@ from cocd.io.runfile import RunFile, RunFileError, RunWriter
 from cocd.scene import Scene
 from cocd.stepper import StepRecord
 
-__all__ = ["DERIVED_FILES", "RUN_FILE", "Progress", "RunSummary", "existing_run", "run"]
+__all__ = [
+    "DERIVED_FILES",
+    "RUN_FILE",
+    "Progress",
+    "RunSummary",
+    "existing_run",
+    "export_step",
+    "run",
+]
 
 #: Name of the run file in the output folder.
 RUN_FILE = "run.h5"
@@ -146,6 +154,43 @@ def run(
     finally:
         writer.close()
     return RunSummary(path, stepper.step_count, frames, start_step, wall)
+
+
+def export_step(
+    run_path: str | Path, step: int | None, out: str | Path
+) -> tuple[Path, StepRecord, StepRecord]:
+    """Take step ``step`` of a run again from its run file and write its problem, with
+    the answer, as an FCLib global problem (:meth:`cocd.stepper.Stepper.export_step`).
+
+    The step starts from the last frame before it, with that frame's contacts and
+    impulses as its warm start; the steps between, if any, are taken again, as a
+    resumed run takes them. ``step``: 1 to the run's last step (None: the last).
+    Returns the file, the step's statistics as taken again and as the run recorded
+    them (their iterations and contacts agree, up to the rounding of sums over
+    threads).
+    """
+    from cocd.errors import CocdError
+
+    with RunFile(run_path) as rf:
+        records = rf.records()
+        done = len(records)
+        if done == 0:
+            raise CocdError(f"{run_path} holds no step yet")
+        k = done if step is None else int(step)
+        if not 1 <= k <= done:
+            raise CocdError(
+                f"--step must be between 1 and {done} (the steps of {run_path}), got {k}"
+            )
+        frame = int(np.searchsorted(rf.steps, k - 1, side="right")) - 1
+        held = rf.frame(frame)
+        scene = rf.scene(frame)
+        previous = (held.keys, held.impulse[:, : rf.contact_dim]) if held.step > 0 else None
+        config = RunConfig.model_validate(rf.config)
+    stepper = config.stepper(scene, resumed=held.step > 0)
+    stepper.restore(records[: held.step], previous)
+    while stepper.step_count < k:
+        stepper.step()
+    return stepper.export_step(out), stepper.records[-1], records[k - 1]
 
 
 def existing_run(path: Path) -> str:

@@ -410,3 +410,42 @@ def test_a_parameter_added_to_a_builder_keeps_older_runs_resumable(tmp_path):
     old["params"]["no_such_parameter"] = 1  # not a parameter of today's builder
     with pytest.raises(RunFileError, match="another scene"):
         _check_same(old, new, tmp_path / "run.h5")
+
+
+# -- one step exported as a problem ---------------------------------------------------------
+def test_a_step_exported_from_a_run_file_is_the_step_the_run_took(tmp_path):
+    """Step 15 is taken again from the frame of step 10 (five steps replayed): the FCLib
+    file holds its problem with the answer the run wrote in its frame of step 15."""
+    from cocd.io import read_problem
+    from cocd.io.fclib import read_fclib_solution
+
+    scene = _scene_file(tmp_path, steps=20, every=5)
+    assert runner.invoke(app, ["run", str(scene), "--out", str(tmp_path)]).exit_code == 0
+    run_file = str(tmp_path / "run.h5")
+    res = runner.invoke(app, ["export", "fclib", run_file, "--step", "15"])
+    assert res.exit_code == 0, res.output
+    path = tmp_path / "step_000015.hdf5"
+    with RunFile(run_file) as rf:
+        frame = rf.frame(list(rf.steps).index(15))
+        stats = rf.stats().set_index("step")
+    assert f"{frame.nc} contacts" in res.output
+    assert f"{stats.iterations[15]} iterations (the run: {frame.nc} contacts" in res.output
+    problem = read_problem(path)
+    solution = read_fclib_solution(path)
+    assert problem.nc == frame.nc == stats.nc[15] and solution is not None
+    r = np.asarray(solution.r).reshape(frame.nc, -1)
+    scale = np.abs(frame.impulse).max()
+    assert np.allclose(r, frame.impulse, rtol=0.0, atol=1e-9 * scale)
+    from cocd.residuals import ccp_residual
+
+    assert ccp_residual(problem.conic, r) < 1e-7  # the run's tol is 1e-9
+    # Its file is not replaced without --force; steps outside the run are named.
+    again = runner.invoke(app, ["export", "fclib", run_file, "--step", "15"])
+    assert again.exit_code == 2 and "--force replaces it" in again.output
+    forced = runner.invoke(app, ["export", "fclib", run_file, "--step", "15", "--force"])
+    assert forced.exit_code == 0, forced.output
+    for step in ("0", "21"):
+        bad = runner.invoke(app, ["export", "fclib", run_file, "--step", step])
+        assert bad.exit_code == 2 and "--step must be between 1 and 20" in bad.output
+    last = runner.invoke(app, ["export", "fclib", run_file, "--out", str(tmp_path / "x.hdf5")])
+    assert last.exit_code == 0 and "step 20 " in last.output
