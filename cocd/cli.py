@@ -366,17 +366,17 @@ def export_fclib_command(
             with RunFile(run_file) as rf:
                 step = len(rf.stats())
         target = out if out is not None else run_file.parent / f"step_{step:06d}.hdf5"
+        writable_file(target, "--out")
         if target.exists() and not force:
             raise CocdError(f"{target} exists: --force replaces it")
-        writable_file(target, "--out")
-        path, again, recorded = export_step(run_file, step, target)
+        path, again, recorded, start = export_step(run_file, step, target)
     except CocdError as exc:
         fail(exc)
         return
     console.print(
-        f"wrote {path}: step {again.step} (t = {again.t:.6g} s), {again.nc} contacts, "
-        f"{again.solver} {again.iterations} iterations (the run: {recorded.nc} contacts, "
-        f"{recorded.iterations} iterations)",
+        f"wrote {path}: step {again.step} (t = {again.t:.6g} s), taken again from the frame "
+        f"of step {start}: {again.nc} contacts, {again.solver} {again.iterations} iterations "
+        f"(the run: {recorded.nc} contacts, {recorded.iterations} iterations)",
         highlight=False,
     )
 

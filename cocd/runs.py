@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from cocd.config import RunConfig, build_scene, same_params
 from cocd.io.runfile import RunFile, RunFileError, RunWriter
@@ -158,7 +159,7 @@ def run(
 
 def export_step(
     run_path: str | Path, step: int | None, out: str | Path
-) -> tuple[Path, StepRecord, StepRecord]:
+) -> tuple[Path, StepRecord, StepRecord, int]:
     """Take step ``step`` of a run again from its run file and write its problem, with
     the answer, as an FCLib global problem (:meth:`cocd.stepper.Stepper.export_step`).
 
@@ -167,7 +168,7 @@ def export_step(
     resumed run takes them. ``step``: 1 to the run's last step (None: the last).
     Returns the file, the step's statistics as taken again and as the run recorded
     them (their iterations and contacts agree, up to the rounding of sums over
-    threads).
+    threads), and the step of the frame it started from.
     """
     from cocd.errors import CocdError
 
@@ -185,12 +186,20 @@ def export_step(
         held = rf.frame(frame)
         scene = rf.scene(frame)
         previous = (held.keys, held.impulse[:, : rf.contact_dim]) if held.step > 0 else None
-        config = RunConfig.model_validate(rf.config)
+        try:
+            config = RunConfig.model_validate(rf.config)
+        except ValidationError as exc:
+            problem = exc.errors()[0]
+            where = ".".join(str(part) for part in problem.get("loc", ()))
+            raise RunFileError(
+                f"{run_path}: its configuration is not one this cocd runs "
+                f"({where}: {problem.get('msg', 'invalid')})"
+            ) from None
     stepper = config.stepper(scene, resumed=held.step > 0)
     stepper.restore(records[: held.step], previous)
     while stepper.step_count < k:
         stepper.step()
-    return stepper.export_step(out), stepper.records[-1], records[k - 1]
+    return stepper.export_step(out), stepper.records[-1], records[k - 1], held.step
 
 
 def existing_run(path: Path) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -428,6 +429,7 @@ def test_a_step_exported_from_a_run_file_is_the_step_the_run_took(tmp_path):
     with RunFile(run_file) as rf:
         frame = rf.frame(list(rf.steps).index(15))
         stats = rf.stats().set_index("step")
+    assert "taken again from the frame of step 10:" in res.output
     assert f"{frame.nc} contacts" in res.output
     assert f"{stats.iterations[15]} iterations (the run: {frame.nc} contacts" in res.output
     problem = read_problem(path)
@@ -447,5 +449,24 @@ def test_a_step_exported_from_a_run_file_is_the_step_the_run_took(tmp_path):
     for step in ("0", "21"):
         bad = runner.invoke(app, ["export", "fclib", run_file, "--step", step])
         assert bad.exit_code == 2 and "--step must be between 1 and 20" in bad.output
+    # Each step from the last frame before it: step 10 from that of step 5, step 1 from
+    # the initial one; with no --step, the last step.
+    for step, start in ((1, 0), (10, 5), (11, 10)):
+        out = str(tmp_path / f"s{step}.hdf5")
+        res = runner.invoke(app, ["export", "fclib", run_file, "--step", str(step), "--out", out])
+        assert res.exit_code == 0, res.output
+        assert f"step {step} (t = " in res.output
+        assert f"taken again from the frame of step {start}:" in res.output
+        assert read_problem(out).nc == stats.nc[step]
     last = runner.invoke(app, ["export", "fclib", run_file, "--out", str(tmp_path / "x.hdf5")])
-    assert last.exit_code == 0 and "step 20 " in last.output
+    assert last.exit_code == 0 and "step 20 (t = " in last.output
+    # A folder for --out, and a run file whose configuration this cocd cannot run.
+    folder = runner.invoke(app, ["export", "fclib", run_file, "--out", str(tmp_path)])
+    assert folder.exit_code == 2 and "is a folder, not a file" in folder.output
+    with h5py.File(run_file, "a") as f:
+        config = json.loads(f.attrs["config"])
+        config["run"]["no_such_option"] = 1
+        f.attrs["config"] = json.dumps(config)
+    bad = runner.invoke(app, ["export", "fclib", run_file, "--out", str(tmp_path / "y.hdf5")])
+    assert bad.exit_code == 2 and "its configuration is not one this cocd runs" in bad.output
+    assert "no_such_option" in bad.output and "Traceback" not in bad.output

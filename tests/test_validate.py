@@ -748,6 +748,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["dims", "--bed-length", "0.1"], "bed_length must exceed"),
         (["dims", "--n2d", "100,200", "--n3d", "300"], "n2d and n3d pair one size each"),
         (["dims", "--n2d", "100,100", "--n3d", "300,400"], "n2d repeats a count"),
+        (["dims", "--n2d", "538,239", "--n3d", "4165,14057"], "more spheres go with more discs"),
         (["avalanche", "--mus", "0.3,-1"], "--mus must be positive numbers"),
         (["avalanche", "--width-d", "8"], "width_d must be at least 12 diameters"),
         (["avalanche3d", "--length-d", "8"], "length_d must be at least 12 diameters"),

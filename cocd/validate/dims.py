@@ -271,7 +271,14 @@ def _sizes(n2d: Any, n3d: Any) -> list[tuple[int, int]]:
         counts = [p[k] for p in pairs]
         if len(set(counts)) != len(counts):
             raise CocdError(f"{name} repeats a count: {counts}")
-    return sorted(pairs, key=lambda p: p[1])
+    pairs.sort(key=lambda p: p[1])
+    twos = [p[0] for p in pairs]
+    if twos != sorted(twos):
+        raise CocdError(
+            "n2d and n3d pair the k-th disc count with the k-th sphere count: more spheres "
+            f"go with more discs, got {', '.join(f'{a} with {b}' for a, b in pairs)}"
+        )
+    return pairs
 
 
 def _row(
