@@ -360,16 +360,7 @@ def export_fclib_command(
     from cocd.runs import export_step
 
     try:
-        if step is None:
-            from cocd.io.runfile import RunFile
-
-            with RunFile(run_file) as rf:
-                step = len(rf.stats())
-        target = out if out is not None else run_file.parent / f"step_{step:06d}.hdf5"
-        writable_file(target, "--out")
-        if target.exists() and not force:
-            raise CocdError(f"{target} exists: --force replaces it")
-        path, again, recorded, start = export_step(run_file, step, target)
+        path, again, recorded, start = export_step(run_file, step, out, force=force)
     except CocdError as exc:
         fail(exc)
         return

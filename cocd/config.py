@@ -239,8 +239,12 @@ def _where(loc: tuple[Any, ...]) -> str:
     return ".".join(str(part) for part in loc) or "(top level)"
 
 
-def parse_config(data: Any, source: str = "scene file") -> RunConfig:
-    """Validate a scene file's content (a dict, as read from TOML)."""
+def parse_config(data: Any, source: str = "scene file", *, params: bool = True) -> RunConfig:
+    """Validate a scene file's content (a dict, as read from TOML).
+
+    ``params=False`` leaves the builder's arguments unchecked: a run file's own
+    configuration, whose frames hold the scene it built (a builder may have gained
+    arguments since)."""
     try:
         config = RunConfig.model_validate(data)
     except pydantic.ValidationError as exc:
@@ -251,7 +255,8 @@ def parse_config(data: Any, source: str = "scene file") -> RunConfig:
         if first["type"] == "extra_forbidden":
             message = "unknown key"
         raise ConfigError(f"{source}: {loc}: {message}{more}") from None
-    _check_params(config, source)
+    if params:
+        _check_params(config, source)
     return config
 
 

@@ -18,9 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import ValidationError
 
-from cocd.config import RunConfig, build_scene, same_params
+from cocd.config import RunConfig, build_scene, parse_config, same_params
 from cocd.io.runfile import RunFile, RunFileError, RunWriter
 from cocd.scene import Scene
 from cocd.stepper import StepRecord
@@ -124,12 +123,8 @@ def run(
             )
         writer = RunWriter.resume(path, config=resolved)
         with RunFile(path) as rf:
-            scene = rf.scene(-1)
-            last = rf.frame(-1)
-            records = rf.records()
-            previous = (last.keys, last.impulse[:, : rf.contact_dim]) if last.step > 0 else None
+            scene, records, previous, start_step = _state_at(rf, rf.n_frames - 1, rf.records())
             frames = rf.n_frames
-        start_step = last.step
     else:
         if scene is None:
             scene = build_scene(config, source)
@@ -158,7 +153,11 @@ def run(
 
 
 def export_step(
-    run_path: str | Path, step: int | None, out: str | Path
+    run_path: str | Path,
+    step: int | None = None,
+    out: str | Path | None = None,
+    *,
+    force: bool = False,
 ) -> tuple[Path, StepRecord, StepRecord, int]:
     """Take step ``step`` of a run again from its run file and write its problem, with
     the answer, as an FCLib global problem (:meth:`cocd.stepper.Stepper.export_step`).
@@ -166,11 +165,13 @@ def export_step(
     The step starts from the last frame before it, with that frame's contacts and
     impulses as its warm start; the steps between, if any, are taken again, as a
     resumed run takes them. ``step``: 1 to the run's last step (None: the last).
-    Returns the file, the step's statistics as taken again and as the run recorded
-    them (their iterations and contacts agree, up to the rounding of sums over
-    threads), and the step of the frame it started from.
+    ``out``: default ``step_<step>.hdf5`` beside the run file; an existing file is
+    replaced only with ``force``. Returns the file, the step's statistics as taken
+    again and as the run recorded them (their iterations and contacts agree, up to
+    the rounding of sums over threads), and the step of the frame it started from.
     """
     from cocd.errors import CocdError
+    from cocd.outputs import writable_file
 
     with RunFile(run_path) as rf:
         records = rf.records()
@@ -182,24 +183,32 @@ def export_step(
             raise CocdError(
                 f"--step must be between 1 and {done} (the steps of {run_path}), got {k}"
             )
+        target = Path(run_path).parent / f"step_{k:06d}.hdf5" if out is None else Path(out)
+        writable_file(target, "--out")
+        if target.exists() and not force:
+            raise CocdError(f"{target} exists: --force replaces it")
+        config = parse_config(
+            rf.config, f"{run_path} (its configuration is not one this cocd runs)", params=False
+        )
         frame = int(np.searchsorted(rf.steps, k - 1, side="right")) - 1
-        held = rf.frame(frame)
-        scene = rf.scene(frame)
-        previous = (held.keys, held.impulse[:, : rf.contact_dim]) if held.step > 0 else None
-        try:
-            config = RunConfig.model_validate(rf.config)
-        except ValidationError as exc:
-            problem = exc.errors()[0]
-            where = ".".join(str(part) for part in problem.get("loc", ()))
-            raise RunFileError(
-                f"{run_path}: its configuration is not one this cocd runs "
-                f"({where}: {problem.get('msg', 'invalid')})"
-            ) from None
-    stepper = config.stepper(scene, resumed=held.step > 0)
-    stepper.restore(records[: held.step], previous)
+        scene, before, previous, start = _state_at(rf, frame, records)
+    stepper = config.stepper(scene, resumed=start > 0)
+    stepper.restore(before, previous)
     while stepper.step_count < k:
         stepper.step()
-    return stepper.export_step(out), stepper.records[-1], records[k - 1], held.step
+    return stepper.export_step(target), stepper.records[-1], records[k - 1], start
+
+
+def _state_at(
+    rf: RunFile, frame: int, records: list[StepRecord]
+) -> tuple[Scene, list[StepRecord], tuple[Any, Any] | None, int]:
+    """What a stepper continues from at saved frame ``frame``: the scene, the steps'
+    statistics up to it (of ``records``, the run file's), the warm start of the next
+    step (the frame's contact keys and impulses; None at the initial frame) and the
+    frame's step."""
+    held = rf.frame(frame)
+    previous = (held.keys, held.impulse[:, : rf.contact_dim]) if held.step > 0 else None
+    return rf.scene(frame), records[: held.step], previous, held.step
 
 
 def existing_run(path: Path) -> str:

@@ -144,16 +144,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     figure = _figure(out / "dims_profiles.png", made, sizes, seeds, slopes, times, cfg.mu, width)
     ensemble = base.ensemble(
         table,
-        ["n_2d", "n_3d", "slope_deg", "t"],
+        ["n_2d", "n_3d", "grain_scale", "slope_deg", "t"],
         ["front_2d_R0", "front_3d_R0", "front_ratio", "mass_end_2d_R0", "mass_end_3d_R0",
          "mass_end_ratio"],
         counts=["reached_end"],
     )  # fmt: skip
-    scale = table.groupby("n_3d").grain_scale.first()
-    ensemble.insert(2, "grain_scale", ensemble.n_3d.map(scale))
     last = ensemble[ensemble.t == times[-1]]
     said = " ".join(
-        f"{n2} discs and {n3} spheres (grains {scale[n3]:.2g} times the seed's): "
+        f"{n2} discs and {n3} spheres (grains {_grain_scale(n3):.2g} times the seed's): "
         + "; ".join(_said(r, times[-1]) for r in last[last.n_3d == n3].to_dict("records"))
         + "."
         for n2, n3 in sizes
@@ -281,6 +279,11 @@ def _sizes(n2d: Any, n3d: Any) -> list[tuple[int, int]]:
     return pairs
 
 
+def _grain_scale(n3d: int) -> float:
+    """The grains' size over the seed's, for a 3D column of ``n3d`` spheres."""
+    return (SEED_N3D / n3d) ** (1.0 / 3.0)
+
+
 def _row(
     two: CollapseSeries, three: CollapseSeries, slope: float, seed: int, t: float, bed: float
 ) -> dict[str, Any]:
@@ -293,7 +296,7 @@ def _row(
         "t": t,
         "n_2d": two.n_grains,
         "n_3d": three.n_grains,
-        "grain_scale": (SEED_N3D / three.n_grains) ** (1.0 / 3.0),
+        "grain_scale": _grain_scale(three.n_grains),
         "d_2d_mm": two.d_mean * 1e3,
         "d_3d_mm": three.d_mean * 1e3,
         "front_2d_m": f2,
