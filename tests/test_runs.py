@@ -71,6 +71,7 @@ def test_seed_run_files_run_at_a_small_size(tmp_path):
     assert seed_files
     for path in seed_files:
         data = load_config(path).model_dump()
+        data["params"].pop("diameter", None)
         data["params"]["n_grains"] = 60
         data["run"].update(steps=1, until=None, frame_every=1)
         summary = run(parse_config(data, str(path)), tmp_path / path.stem)

@@ -551,6 +551,60 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     assert "100 discs and 300 spheres" in summary and "150 discs and 500 spheres" in summary
 
 
+def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_frames(tmp_path):
+    """Seed 001's flume in small: a pile on an erodible bed in a channel with rough
+    sidewalls, on the flat and at 12 degrees. On the flat it comes to rest, the front
+    before the whole flow; down the slope the deposit is lower at the back wall, runs
+    further and stops later, if at all (its surface creeps in bursts: whether it is
+    still at 1 s depends on the threads' order of summation). The rest time and the
+    height are those of the run file's frames; run again, both runs are read back."""
+    from cocd.io.runfile import RunFile
+    from cocd.validate import flume
+
+    kwargs = dict(
+        slopes=[12.0, 0.0], diameter=0.01, length=0.08, height=0.04, width=0.04, layer=0.02,
+        bed_length=0.5, dt=5e-3, until=1.0, tol=1e-4,
+    )  # fmt: skip
+    table = flume.STUDY(out=tmp_path, progress=_quiet([]), **kwargs)
+    assert list(table.slope_deg) == [0.0, 12.0]
+    assert (table.W_over_d == 4.0).all() and not table.reached_end.any()
+    flat, slope = (table.iloc[k] for k in (0, 1))
+    assert not flat.still_moving and flat.t_front_s <= flat.t_f_s < 1.0  # the front first
+    assert flat.speed_end <= 0.01
+    assert slope.Hf_over_H0 < 0.7 * flat.Hf_over_H0 and slope.runout_m >= flat.runout_m
+    if slope.still_moving:
+        assert slope.speed_end > 0.01 and np.isnan(slope.t_f_s)
+    else:
+        assert slope.t_f_s > flat.t_f_s
+    assert 0.0 < flat.Hf_m < flat.H0_m
+    # The layer's surface far downstream, the height at the back wall and the rest time,
+    # read again from the flat run's frames.
+    with RunFile(tmp_path / "runs" / "flume" / "slope0_d10mm_W4cm_L0.5m_mu0.25" / "run.h5") as rf:
+        scene = rf.scene(0)
+        free, r = ~scene.fixed, rf.radii
+        base = float(np.max(scene.positions[scene.fixed, 2] + r[scene.fixed]))
+        last = rf.frame(-1).positions
+        top = last[free, 2] + r[free]
+        far = free[free] & (last[free, 0] > 0.45) & (last[free, 0] < 0.48)
+        back = last[free, 0] < 0.01
+        assert flat.Hf_m == pytest.approx(top[back].max() - base - flat.bed_top_m)
+        assert flat.bed_top_m == pytest.approx(np.median(
+            [top[far & (np.floor(last[free, 0] / 0.01) == k)].max() - base for k in range(45, 48)]
+        ))  # fmt: skip
+        speeds = [np.linalg.norm(rf.frame(k).velocities[free], axis=1).max() for k in
+                  range(rf.n_frames)]  # fmt: skip
+        rest = next(k for k in range(rf.n_frames) if max(speeds[k:]) <= 0.01)
+        assert rest > 0 and flat.t_f_s == pytest.approx(rf.times[rest])
+    summary = json.loads((tmp_path / "flume.meta.json").read_text())["summary"]
+    assert f"Hf / H0 {flat.Hf_over_H0:.3g}" in summary
+    assert f"at rest at {flat.t_f_s:.3g} s" in summary
+    assert (tmp_path / "flume_profiles.png").stat().st_size > 0
+    lines: list[str] = []
+    again = flume.STUDY(out=tmp_path, progress=lines.append, **kwargs)
+    assert sum(line.endswith("(kept)") for line in lines) == 2
+    pd.testing.assert_frame_equal(again, table)
+
+
 def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path, monkeypatch):
     from cocd.validate.avalanche import STUDY as avalanche
 
@@ -754,6 +808,11 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["avalanche3d", "--length-d", "8"], "length_d must be at least 12 diameters"),
         (["avalanche3d", "--target-deg", "95"], "target_deg must be between 0 and 90"),
         (["avalanche3d", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
+        (["flume", "--width", "0.005"], "width must be at least 2 diameters"),
+        (["flume", "--bed-length", "0.1"], "bed_length must exceed the pile's length"),
+        (["flume", "--slopes", "0,95"], "slopes must be in [0, 90)"),
+        (["flume", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
+        (["flume", "--until", "0.015"], "is not a whole number of steps"),
     ):
         result = runner.invoke(app, ["validate", *args, *out])
         assert result.exit_code == 2, (args, result.output)

@@ -90,6 +90,9 @@ class CollapseSeries:
     d_mean: float
     #: Steps solved to make it (0: read back from kept measurements).
     steps_made: int = 0
+    #: The largest speed of a free grain at each saved frame (m/s); None when read back
+    #: from measurements kept before it was measured.
+    speed_max: FloatArray | None = None
 
     @property
     def steps(self) -> int:
@@ -135,6 +138,9 @@ class CollapseJob:
     bin_width: float | None = None
     x_max: float | None = None
     n_free: int | None = None
+    #: Profiles of the free surface (the highest free grain per bin) rather than of the
+    #: main mass (:func:`cocd.measure.mass_profile`'s ``connected``).
+    surface: bool = False
 
     @property
     def steps(self) -> float:
@@ -171,6 +177,7 @@ def collapse_job(
     bin_width: float | None = None,
     x_max: float | None = None,
     n_free: int | None = None,
+    surface: bool = False,
 ) -> CollapseJob:
     """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
 
@@ -199,6 +206,7 @@ def collapse_job(
         bin_width=bin_width,
         x_max=x_max,
         n_free=n_free,
+        surface=surface,
     )
 
 
@@ -208,7 +216,8 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
     Frames are saved every ``job.frame_dt`` seconds (a whole number of steps).
     Profiles are measured at ``job.profile_times``, each of which must fall on a
     saved frame; bins are ``job.bin_width`` wide (default: one mean diameter) from
-    the back wall to ``job.x_max`` (default: the bed's end).
+    the back wall to ``job.x_max`` (default: the bed's end), of the main mass or, with
+    ``job.surface``, of the free surface.
     """
     from cocd.errors import SolverError
     from cocd.runs import MEASURED_FILES, RUN_FILE, Progress, run
@@ -252,7 +261,7 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
     if summary.resumed_from_step and summary.steps > summary.resumed_from_step:
         progress(f"  {label}: resumed at step {summary.resumed_from_step}")
     series = measure_series(
-        summary.path, label, job.profile_times, job.bin_width, job.x_max, job.dt
+        summary.path, label, job.profile_times, job.bin_width, job.x_max, job.dt, job.surface
     )
     write_measured(folder, key, series)
     return dataclasses.replace(series, steps_made=summary.steps - (summary.resumed_from_step or 0))
@@ -287,6 +296,8 @@ def _run_key(job: CollapseJob) -> tuple[Any, dict[str, Any]]:
             "profile_times": [float(t) for t in job.profile_times],
             "bin_width": job.bin_width,
             "x_max": job.x_max,
+            # Only when set: the keys of the measurements kept before it stay the same.
+            **({"surface": True} if job.surface else {}),
         },
     }
     return config, key
@@ -306,6 +317,8 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
         "profiles": series.profiles,
         "x_edges": series.x_edges,
     }
+    if series.speed_max is not None:
+        arrays["speed_max"] = series.speed_max
     np.savez_compressed(folder / "measured.npz", **arrays)  # type: ignore[arg-type]
     series.stats.to_parquet(folder / "measured_stats.parquet", index=False)
     meta = {**key, "n_grains": series.n_grains, "d_mean": series.d_mean}
@@ -351,6 +364,7 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
         stats=stats,
         n_grains=int(meta["n_grains"]),
         d_mean=float(meta["d_mean"]),
+        speed_max=arrays.get("speed_max"),
     )
 
 
@@ -361,6 +375,7 @@ def measure_series(
     bin_width: float | None,
     x_max: float | None,
     dt: float,
+    surface_profiles: bool = False,
 ) -> CollapseSeries:
     from cocd.io.runfile import RunFile
     from cocd.measure import bed_surface, mass_profile, surface_front
@@ -380,18 +395,20 @@ def measure_series(
         edges = np.arange(0.0, x_max + width, width)
         surface = bed_surface(scene0, edges)  # the erodible layer's top, else the bed's
         times = rf.times.copy()
-        front = np.array(
-            [
-                surface_front(rf.frame(k).positions, r, x_bins=edges, surface=surface, mask=free)
-                for k in range(rf.n_frames)
-            ]
-        )
+        front = np.empty(rf.n_frames)
+        speed_max = np.empty(rf.n_frames)
+        for k in range(rf.n_frames):
+            frame = rf.frame(k)
+            front[k] = surface_front(frame.positions, r, x_bins=edges, surface=surface, mask=free)
+            speed_max[k] = float(np.sqrt(np.max(np.sum(frame.velocities[free] ** 2, axis=1))))
         profiles = []
         for t in profile_times:
             k = int(np.argmin(np.abs(times - t)))
             if abs(times[k] - t) > _FRAME_MATCH * dt:
                 raise CocdError(f"{label}: no frame saved at t = {t:g} s in {path}")
-            prof = mass_profile(rf.frame(k).positions, r, x_bins=edges, mask=free)
+            prof = mass_profile(
+                rf.frame(k).positions, r, x_bins=edges, mask=free, connected=not surface_profiles
+            )
             profiles.append(np.nan_to_num(prof.height - base, nan=0.0).clip(min=0.0))
         stats = rf.stats()
         n_grains = int(column.sum())
@@ -406,6 +423,7 @@ def measure_series(
         stats=stats,
         n_grains=n_grains,
         d_mean=d_mean,
+        speed_max=speed_max,
     )
 
 

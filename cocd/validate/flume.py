@@ -1,0 +1,344 @@
+"""``cocd validate flume``: seed 001's flume collapses with its glass beads (runs B00 to
+B20), as grains.
+
+A pile ``L0 x H0`` (seed 001: aspect ratio about 0.5, ``H0`` about 10 cm) stands
+against the back wall of a channel ``W = 6 cm`` wide whose glass sidewalls have
+friction ``mu_w = 0.23``, on an erodible bed of the same grains about 2 cm thick,
+and is released at t = 0; the whole flume is tilted by 0 to 20 degrees. Seed 001
+(Sec. 4.2, its Table 2) measures for each slope:
+
+- the rest time ``t_f``: when no velocity exceeds 0.01 m/s anywhere;
+- the final upslope height ``H_f``, at the back wall;
+- the runout from the gate ``L_f - L0``: the length of the continuous deposit whose
+  height exceeds 2 mm (Balmforth and Kerswell 2005);
+
+and states that the front stops before the whole flow does. The experiment's 0.5 mm
+beads are far out of reach: the grains here are the largest that keep the channel 15
+diameters wide (4 mm), and the grain friction is the one whose layers avalanche at
+the beads' 23.7 +- 1 degrees (``cocd validate avalanche3d``), not the continuum's 0.44.
+
+The runs are long (tens of thousands of spheres, hundreds of steps): every
+simulation is a resumable run file, continued from its last frame when the command
+is run again (:func:`cocd.validate._common.collapse_series`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cocd.bench import estimate
+from cocd.bench.study import option
+from cocd.errors import CocdError
+from cocd.validate import _common as base
+from cocd.validate._common import CollapseSeries, CollapseSettings, register
+
+__all__ = ["SEED_SLOPES", "STUDY", "Settings", "run"]
+
+#: Seed 001's bed inclinations for its glass beads, runs B00 to B20 (degrees).
+SEED_SLOPES = (0.0, 5.0, 10.0, 15.0, 20.0)
+
+
+@dataclass(frozen=True)
+class Settings(CollapseSettings):
+    """The options of ``cocd validate flume``."""
+
+    solver: str = option("apgd", "Convex backend of the runs.")
+    tol: float = option(1e-5, "Tolerance of the convex backend (the seed's 3D choice).")
+    fallback: tuple[str, ...] = option(
+        (),
+        "Backends tried when a step fails (comma-separated; none by default: a failed "
+        "step stops the run, which resumes from its last frame).",
+        kind="names",
+    )
+    slopes: tuple[float, ...] = option(
+        SEED_SLOPES, "Flume inclinations (degrees; seed 001's B00 to B20).", kind="numbers"
+    )
+    diameter: float = option(
+        0.004, "Mean grain diameter (m); 4 mm keeps the 6 cm channel 15 diameters wide."
+    )
+    length: float = option(0.20, "Pile length L0 along the flume (m).")
+    height: float = option(0.10, "Pile height H0 (m); seed 001: a = H0 / L0 about 0.5.")
+    width: float = option(0.06, "Channel width W (m; seed 001's 6 cm).")
+    layer: float = option(0.02, "Thickness of the erodible bed (m; seed 001's 2 cm).")
+    bed_length: float = option(1.52, "Length of the flume's bed (m; seed 001's 152 cm).")
+    mu: float = option(
+        0.25,
+        "Friction of the grains and of the back wall (0.25: layers of these spheres "
+        "avalanche at 24.5 +- 0.8 degrees in cocd validate avalanche3d, inside the beads' "
+        "23.7 +- 1).",
+    )
+    side_mu: float = option(0.23, "Friction of the sidewalls (seed 001's beads on glass).")
+    dt: float = option(1e-2, "Time step (s).")
+    until: float = option(3.0, "Simulated time (s).")
+    rest_speed: float = option(
+        0.01, "At rest: no free grain faster than this (m/s; seed 001's criterion)."
+    )
+    threshold: float = option(
+        0.002, "The deposit's edge: where it stands less than this above the bed (m)."
+    )
+    seeds: int = option(1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1.")
+
+
+def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
+    """Collapse seed 001's pile in its flume at each slope; rest time, height and runout.
+
+    Returns the table written to ``flume.csv``: one row per slope and packing.
+    """
+    slopes = sorted({float(s) for s in cfg.slopes})
+    if not slopes or any(not (0.0 <= s < 90.0) for s in slopes):
+        raise CocdError(f"slopes must be in [0, 90) degrees, got {list(cfg.slopes)!r}")
+    d, L0, H0, W, layer, bed, dt, until, rest_speed, threshold = base.positive_list(
+        "diameter, length, height, width, layer, bed_length, dt, until, rest_speed, threshold",
+        [cfg.diameter, cfg.length, cfg.height, cfg.width, cfg.layer, cfg.bed_length, cfg.dt,
+         cfg.until, cfg.rest_speed, cfg.threshold],
+    )  # fmt: skip
+    if W < 2.0 * d:
+        raise CocdError(f"width must be at least 2 diameters ({2.0 * d:g} m), got {W:g}")
+    if bed <= L0:
+        raise CocdError(f"bed_length must exceed the pile's length {L0:g} m, got {bed:g}")
+    if not (math.isfinite(cfg.side_mu) and cfg.side_mu >= 0.0):
+        raise CocdError(f"side_mu must be a number >= 0, got {cfg.side_mu!r}")
+    seeds = base.positive_int("seeds", cfg.seeds)
+    steps = round(until / dt)
+    if abs(steps * dt - until) > 1e-6 * dt:
+        raise CocdError(f"until {until:g} s is not a whole number of steps of {dt:g} s")
+    out = Path(out)
+    cases = [(seed, slope) for seed in range(seeds) for slope in slopes]
+    jobs = []
+    for seed, slope in cases:
+        params = {
+            "dim": 3,
+            "diameter": d,
+            "length": L0,
+            "height": H0,
+            "width": W,
+            "slope_deg": slope,
+            "mu": cfg.mu,
+            "mu_side": float(cfg.side_mu),
+            "bed": "rough",
+            "erodible_thickness": layer,
+            "bed_length": bed,
+        }
+        label = f"slope{slope:g}_d{d * 1e3:g}mm_W{W * 100:g}cm_L{bed:g}m_mu{cfg.mu:g}"
+        # Every step is a frame: a step can take a minute, so a stopped run loses one.
+        jobs.append(
+            base.collapse_job(
+                out,
+                "flume",
+                label,
+                seed,
+                params,
+                cfg,
+                what=f"slope {slope:g} deg, W = {W / d:.3g} d",
+                dt=dt,
+                until=until,
+                frame_dt=dt,
+                profile_times=[0.0, until],
+                surface=True,
+            )
+        )
+    estimate.announce(
+        "flume",
+        [(job.free_grains, job.steps) for job in jobs],
+        out=out,
+        progress=progress,
+        workers=cfg.workers,
+    )
+    made = base.collapse_runs(jobs, cfg.workers, progress)
+    table = pd.DataFrame(
+        [
+            _row(s, seed, slope, L0, W, rest_speed, threshold)
+            for (seed, slope), s in zip(cases, made, strict=True)
+        ]
+    )
+    ensemble = base.ensemble(
+        table,
+        ["slope_deg"],
+        ["t_f_s", "t_front_s", "Hf_m", "Hf_over_H0", "runout_m", "runout_over_L0"],
+        counts=["still_moving", "reached_end"],
+    )
+    files = base.report.write_table(
+        out,
+        "flume_ensemble",
+        ensemble,
+        title="Seed 001's flume collapses: mean and spread over the packings",
+        intro="Per slope, over the packings (`seeds`): mean and sample standard deviation "
+        "(`_sd`, empty for one packing); `still_moving`: packings not at rest at the end "
+        "(no rest time); `reached_end`: packings whose deposit reached the bed's end.",
+    )
+    reach = L0 + float(np.nanmax(table.runout_m))
+    figure = _figure(out / "flume_profiles.png", made, cases, L0, reach, cfg)
+    summary = _summary(ensemble, table, d, L0, H0, W, layer, bed, dt, until, cfg)
+    intro = (
+        "Seed 001's measures, on the final frame's profile (the highest grain across the "
+        "width, in bins one diameter wide) above the erodible bed's surface far downstream "
+        "(`bed_top_m`, above the glued grains): `Hf_m`, the height at the back wall; "
+        "`runout_m`, from the gate (x = L0) to the first bin where the deposit stands less "
+        f"than `threshold` ({threshold:g} m) above that surface: the continuous deposit; "
+        "`H0_m`: the pile as built, measured the same way at t = 0; "
+        f"`t_f_s`: the rest time, from which no free grain is faster than {rest_speed:g} "
+        "m/s (NaN: moving at the end, `still_moving`); `t_front_s`: from when the front "
+        "(:func:`cocd.measure.surface_front`) stays within one diameter of its final "
+        "place; `speed_end`: the largest speed at the end (m/s); `W_over_d`: the channel "
+        "in diameters; `n_free`: free grains (pile and bed); `s_per_step`: detection, "
+        "set-up and solve per step."
+    )
+    base.finish(
+        out,
+        "flume",
+        "Seed 001's flume collapses (runs B00 to B20)",
+        table,
+        intro,
+        summary,
+        [*files, figure],
+        progress,
+    )
+    return table
+
+
+def _row(
+    s: CollapseSeries,
+    seed: int,
+    slope: float,
+    L0: float,
+    W: float,
+    rest_speed: float,
+    threshold: float,
+) -> dict[str, Any]:
+    edges = s.x_edges
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    first, last = s.profiles[0], s.profiles[-1]
+    # The bed's surface: the erodible layer's top far downstream, at the start and at the
+    # end (a loose layer settles), from the last tenth of the bed without its end wall.
+    # A bin without a grain centred in it reads 0 (the loose lattice leaves one in about
+    # fifty empty until the flow reaches it): left out.
+    far = (centres > 0.9 * edges[-1]) & (centres < edges[-1] - 2.0 * s.d_mean)
+    top0, top = float(np.median(first[far & (first > 0)])), float(np.median(last[far & (last > 0)]))
+    thickness = last - top
+    ahead = np.nonzero((centres > L0) & (last > 0))[0]
+    thin = ahead[thickness[ahead] < threshold]
+    end = edges[thin[0]] if thin.size else edges[-1]
+    speeds = s.speed_max if s.speed_max is not None else np.full(s.times.size, np.nan)
+    moving = np.nonzero(~(speeds <= rest_speed))[0]
+    at_rest = moving.size == 0 or moving[-1] < s.times.size - 1
+    t_f = float(s.times[moving[-1] + 1]) if moving.size and at_rest else float(s.times[0])
+    settled = np.abs(s.front - s.front[-1]) <= s.d_mean
+    unsettled = np.nonzero(~settled)[0]
+    t_front = float(s.times[unsettled[-1] + 1]) if unsettled.size else float(s.times[0])
+    stats = s.stats
+    per_step = (stats.detect_time + stats.setup_time + stats.solve_time).to_numpy()
+    return {
+        "seed": seed,
+        "slope_deg": slope,
+        "W_over_d": W / s.d_mean,
+        "d_mm": s.d_mean * 1e3,
+        "n_free": int(stats.n.iloc[0]) if len(stats) else 0,
+        "t_end": round(float(s.times[-1]), 9),
+        "bed_top0_m": top0,
+        "bed_top_m": top,
+        "H0_m": float(first[0] - top0),
+        "Hf_m": float(last[0] - top),
+        "Hf_over_H0": float((last[0] - top) / (first[0] - top0)),
+        "runout_m": float(end - L0),
+        "runout_over_L0": float((end - L0) / L0),
+        "t_f_s": t_f if at_rest else np.nan,
+        "t_front_s": t_front,
+        "speed_end": float(speeds[-1]),
+        "still_moving": not at_rest,
+        "reached_end": bool(end >= edges[-1] - 2.0 * s.d_mean),
+        "steps": s.steps,
+        "iterations_mean": float(stats.iterations.mean()) if len(stats) else np.nan,
+        "s_per_step": float(per_step.mean()) if per_step.size else np.nan,
+        "compute_s": s.compute_s,
+        "penetration_max": s.penetration_max,
+    }
+
+
+def _figure(
+    path: Path,
+    made: list[CollapseSeries],
+    cases: list[tuple[int, float]],
+    L0: float,
+    reach: float,
+    cfg: Settings,
+) -> Path:
+    """The final deposit's profile above the flume's glued bed, per slope (seed 001's
+    Fig. 8, right-hand column), every packing, with the pile as built."""
+    plt = base.pyplot()
+    slopes = sorted({slope for _, slope in cases})
+    fig, axes = plt.subplots(len(slopes), 1, figsize=(9, 2.2 * len(slopes)), squeeze=False)
+    for ax, slope in zip(axes[:, 0], slopes, strict=True):
+        for (seed, sl), s in zip(cases, made, strict=True):
+            if sl != slope:
+                continue
+            centres = 0.5 * (s.x_edges[:-1] + s.x_edges[1:])
+            if seed == 0:
+                ax.plot(centres, s.profiles[0], color="0.6", lw=1, label="t = 0")
+            ax.plot(centres, s.profiles[-1], lw=1.2, label=f"t = {s.times[-1]:g} s, packing {seed}")
+        ax.axvline(L0, color="0.3", ls=":", lw=1)
+        ax.set_xlim(0.0, 1.2 * reach)
+        ax.set_title(
+            f"slope {slope:g} deg, N = {made[0].n_grains} in the pile, mu = {cfg.mu:g}, "
+            f"mu_w = {cfg.side_mu:g}",
+            fontsize=9,
+        )
+        ax.set_ylabel("h (m)")
+        ax.grid(True, alpha=0.3)
+    axes[-1, 0].set_xlabel("x from the back wall (m); dotted: the gate")
+    axes[0, 0].legend(fontsize=7)
+    return base.save_figure(fig, path)
+
+
+def _summary(
+    ensemble: pd.DataFrame,
+    table: pd.DataFrame,
+    d: float,
+    L0: float,
+    H0: float,
+    W: float,
+    layer: float,
+    bed: float,
+    dt: float,
+    until: float,
+    cfg: Settings,
+) -> str:
+    """The summary, every number taken from ``ensemble`` and ``table``."""
+    pm = base.pm
+    parts = []
+    for row in ensemble.to_dict("records"):
+        rest = (
+            f"at rest at {pm(row, 't_f_s')} s"
+            if row["still_moving"] < row["seeds"]
+            else f"still moving at {until:g} s"
+        )
+        parts.append(
+            f"{row['slope_deg']:g} deg: Hf / H0 {pm(row, 'Hf_over_H0')}, runout from the "
+            f"gate {pm(row, 'runout_m')} m, {rest}, front settled at {pm(row, 't_front_s')} s"
+        )
+    n_free = ", ".join(str(n) for n in sorted(set(table.n_free)))
+    return (
+        f"Seed 001's pile, L0 x H0 = {L0 * 100:g} x {H0 * 100:g} cm, in a {W * 100:g} cm "
+        f"channel ({W / d:.3g} diameters of {d * 1e3:g} mm) with sidewall friction "
+        f"{cfg.side_mu:g}, on an erodible bed {layer * 100:g} cm thick and {bed:g} m long "
+        f"({n_free} free spheres), grain friction {cfg.mu:g}, dt = {dt:g} s, `{cfg.solver}` "
+        f"at tol {cfg.tol:g}, to t = {until:g} s; mean +- spread over the packings: "
+        f"**{'; '.join(parts)}**. Seed 001 (0.5 mm beads, a continuum with mu = 0.44) "
+        "finds the front stopping before the whole flow, and the rest time depending on "
+        "the slope."
+    )
+
+
+STUDY = register(
+    "flume",
+    Settings,
+    run,
+    help="Seed 001's flume collapses (B00 to B20): rest time, final height and runout "
+    "from the gate against slope.",
+)
