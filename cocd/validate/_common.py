@@ -15,9 +15,10 @@ from them without the run file. ``fresh=True`` starts them over. A failed
 step stops the case with a :class:`CocdError` naming it; the run files keep
 what was computed.
 
-Profiles are the free-surface height of the main connected mass above the
-bed's top (:func:`cocd.measure.mass_profile`), on bins one mean diameter
-wide, zero where there is no grain. Fronts are those of the grains that
+Profiles are the free-surface height of the main connected mass (or, with
+:attr:`CollapseJob.surface`, of every free grain) above the bed's top
+(:func:`cocd.measure.mass_profile`), on bins one mean diameter wide, zero where
+there is no grain. Fronts are those of the grains that
 started in the column (:func:`cocd.measure.front_position`), measured from
 the back wall; on an erodible bed the layer's grains do not count, so the
 front is the column's, as in the experiments the seed compares with.
@@ -352,6 +353,8 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
             arrays = {name: np.asarray(data[name]) for name in data.files}
         stats = pd.read_parquet(folder / "measured_stats.parquet")
     except (OSError, ValueError, KeyError):  # missing or damaged: measure the run again
+        return None
+    if key["measure"].get("surface") and "speed_max" not in arrays:  # written with it
         return None
     return CollapseSeries(
         label=label,

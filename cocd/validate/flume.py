@@ -44,6 +44,9 @@ __all__ = ["SEED_SLOPES", "STUDY", "Settings", "run"]
 #: Seed 001's bed inclinations for its glass beads, runs B00 to B20 (degrees).
 SEED_SLOPES = (0.0, 5.0, 10.0, 15.0, 20.0)
 
+#: Bins of the bed downstream of the final front that give its surface at the end.
+FAR_BINS = 5
+
 
 @dataclass(frozen=True)
 class Settings(CollapseSettings):
@@ -101,8 +104,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     )  # fmt: skip
     if W < 2.0 * d:
         raise CocdError(f"width must be at least 2 diameters ({2.0 * d:g} m), got {W:g}")
-    if bed <= L0:
-        raise CocdError(f"bed_length must exceed the pile's length {L0:g} m, got {bed:g}")
+    if bed < L0 + 10.0 * d:
+        raise CocdError(
+            f"bed_length must exceed the pile's length {L0:g} m by 10 diameters, got {bed:g}"
+        )
     if not (math.isfinite(cfg.side_mu) and cfg.side_mu >= 0.0):
         raise CocdError(f"side_mu must be a number >= 0, got {cfg.side_mu!r}")
     seeds = base.positive_int("seeds", cfg.seeds)
@@ -178,17 +183,20 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     summary = _summary(ensemble, table, d, L0, H0, W, layer, bed, dt, until, cfg)
     intro = (
         "Seed 001's measures, on the final frame's profile (the highest grain across the "
-        "width, in bins one diameter wide) above the erodible bed's surface far downstream "
-        "(`bed_top_m`, above the glued grains): `Hf_m`, the height at the back wall; "
+        "width, in bins one diameter wide) above the erodible bed's surface (`bed_top_m`, "
+        "above the glued grains: the layer's median top downstream of the deposit's front; "
+        "the start's, `bed_top0_m`, downstream of the pile, when the deposit reaches the "
+        "end): `Hf_m`, the height at the back wall; "
         "`runout_m`, from the gate (x = L0) to the first bin where the deposit stands less "
         f"than `threshold` ({threshold:g} m) above that surface: the continuous deposit; "
         "`H0_m`: the pile as built, measured the same way at t = 0; "
         f"`t_f_s`: the rest time, from which no free grain is faster than {rest_speed:g} "
-        "m/s (NaN: moving at the end, `still_moving`); `t_front_s`: from when the front "
-        "(:func:`cocd.measure.surface_front`) stays within one diameter of its final "
-        "place; `speed_end`: the largest speed at the end (m/s); `W_over_d`: the channel "
-        "in diameters; `n_free`: free grains (pile and bed); `s_per_step`: detection, "
-        "set-up and solve per step."
+        "m/s (NaN: moving at the end, `still_moving`), and `quiet_s`, how long the run went "
+        "on after it (a short one may be a pause between bursts); `t_front_s`: from when "
+        "the front (:func:`cocd.measure.surface_front`) stays within one diameter of its "
+        "final place; `front_m`: the front at the end, from the back wall; `speed_end`: the "
+        "largest speed at the end (m/s); `W_over_d`: the channel in diameters; `n_free`: "
+        "free grains (pile and bed); `s_per_step`: detection, set-up and solve per step."
     )
     base.finish(
         out,
@@ -215,23 +223,30 @@ def _row(
     edges = s.x_edges
     centres = 0.5 * (edges[:-1] + edges[1:])
     first, last = s.profiles[0], s.profiles[-1]
-    # The bed's surface: the erodible layer's top far downstream, at the start and at the
-    # end (a loose layer settles), from the last tenth of the bed without its end wall.
-    # A bin without a grain centred in it reads 0 (the loose lattice leaves one in about
-    # fifty empty until the flow reaches it): left out.
-    far = (centres > 0.9 * edges[-1]) & (centres < edges[-1] - 2.0 * s.d_mean)
-    top0, top = float(np.median(first[far & (first > 0)])), float(np.median(last[far & (last > 0)]))
+    d, bed_end = s.d_mean, float(edges[-1])
+    # The bed's surface: the erodible layer's median top downstream of the pile at the
+    # start, and of the final front at the end (a loose layer settles), short of the end
+    # wall. A bin without a grain centred in it reads 0 (the loose lattice leaves one in
+    # about fifty empty until the flow reaches it): left out. A deposit that reaches the
+    # end leaves no such bin: the start's surface is used, and the row is cut short.
+    wall = centres < bed_end - 2.0 * d
+    top0 = float(np.median(first[(centres > L0 + 3.0 * d) & wall & (first > 0)]))
+    front = float(s.front[-1]) if np.isfinite(s.front[-1]) else L0
+    far = (centres > front + 3.0 * d) & wall & (last > 0)
+    top = float(np.median(last[far])) if far.sum() >= FAR_BINS else top0
     thickness = last - top
     ahead = np.nonzero((centres > L0) & (last > 0))[0]
     thin = ahead[thickness[ahead] < threshold]
-    end = edges[thin[0]] if thin.size else edges[-1]
+    end = min(max(float(edges[thin[0]]) if thin.size else bed_end, L0), bed_end)
     speeds = s.speed_max if s.speed_max is not None else np.full(s.times.size, np.nan)
-    moving = np.nonzero(~(speeds <= rest_speed))[0]
+    moving = np.nonzero(~(speeds <= rest_speed))[0]  # NaN (not measured) counts as moving
     at_rest = moving.size == 0 or moving[-1] < s.times.size - 1
     t_f = float(s.times[moving[-1] + 1]) if moving.size and at_rest else float(s.times[0])
-    settled = np.abs(s.front - s.front[-1]) <= s.d_mean
-    unsettled = np.nonzero(~settled)[0]
-    t_front = float(s.times[unsettled[-1] + 1]) if unsettled.size else float(s.times[0])
+    if np.isfinite(s.front[-1]):
+        unsettled = np.nonzero(~(np.abs(s.front - s.front[-1]) <= d))[0]
+        t_front = float(s.times[unsettled[-1] + 1]) if unsettled.size else float(s.times[0])
+    else:
+        t_front = np.nan
     stats = s.stats
     per_step = (stats.detect_time + stats.setup_time + stats.solve_time).to_numpy()
     return {
@@ -246,13 +261,17 @@ def _row(
         "H0_m": float(first[0] - top0),
         "Hf_m": float(last[0] - top),
         "Hf_over_H0": float((last[0] - top) / (first[0] - top0)),
+        "front_m": float(s.front[-1]),
         "runout_m": float(end - L0),
         "runout_over_L0": float((end - L0) / L0),
         "t_f_s": t_f if at_rest else np.nan,
+        "quiet_s": float(s.times[-1]) - t_f if at_rest else 0.0,
         "t_front_s": t_front,
         "speed_end": float(speeds[-1]),
         "still_moving": not at_rest,
-        "reached_end": bool(end >= edges[-1] - 2.0 * s.d_mean),
+        "reached_end": bool(
+            base.cut_short(s.front, bed_end, d) or far.sum() < FAR_BINS or end >= bed_end - 2 * d
+        ),
         "steps": s.steps,
         "iterations_mean": float(stats.iterations.mean()) if len(stats) else np.nan,
         "s_per_step": float(per_step.mean()) if per_step.size else np.nan,
@@ -313,9 +332,11 @@ def _summary(
     pm = base.pm
     parts = []
     for row in ensemble.to_dict("records"):
+        moving = int(row["still_moving"])
         rest = (
             f"at rest at {pm(row, 't_f_s')} s"
-            if row["still_moving"] < row["seeds"]
+            + (f" ({moving} of {row['seeds']} still moving at {until:g} s)" if moving else "")
+            if moving < row["seeds"]
             else f"still moving at {until:g} s"
         )
         parts.append(
