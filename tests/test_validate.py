@@ -597,10 +597,18 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
         edge = next(k for k in range(8, 50) if (x_bin == k).any() and top[x_bin == k].max()
                     - base - flat.bed_top_m < 0.002)  # fmt: skip
         assert flat.runout_m == pytest.approx(edge * 0.01 - 0.08)
-        speeds = [np.linalg.norm(rf.frame(k).velocities[free], axis=1).max() for k in
-                  range(rf.n_frames)]  # fmt: skip
-        rest = next(k for k in range(rf.n_frames) if max(speeds[k:]) <= 0.01)
-        assert rest > 0 and flat.t_f_s == pytest.approx(rf.times[rest])
+        # The rest time of the flow (grains not past the final front by more than a
+        # diameter), and of every free grain.
+        for column, near in (("t_f_s", True), ("t_f_all_s", False)):
+            speeds = []
+            for k in range(rf.n_frames):
+                frame = rf.frame(k)
+                keep = free & (frame.positions[:, 0] <= flat.front_m + 0.01 if near else True)
+                speeds.append(np.linalg.norm(frame.velocities[keep], axis=1).max())
+            moving = [k for k in range(rf.n_frames) if speeds[k] > 0.01]
+            assert moving and moving[-1] < rf.n_frames - 1
+            assert flat[column] == pytest.approx(rf.times[moving[-1] + 1])
+        assert flat.t_f_all_s >= flat.t_f_s
     summary = json.loads((tmp_path / "flume.meta.json").read_text())["summary"]
     assert f"Hf / H0 {flat.Hf_over_H0:.3g}" in summary
     assert f"at rest at {flat.t_f_s:.3g} s" in summary

@@ -91,9 +91,12 @@ class CollapseSeries:
     d_mean: float
     #: Steps solved to make it (0: read back from kept measurements).
     steps_made: int = 0
-    #: The largest speed of a free grain at each saved frame (m/s); None when read back
-    #: from measurements kept before it was measured.
+    #: The largest speed of a free grain at each saved frame (m/s), and of a free grain
+    #: of the flow, not past the last frame's front by more than a diameter (on an
+    #: erodible bed, the layer far ahead is left out); None when read back from
+    #: measurements kept before they were measured.
     speed_max: FloatArray | None = None
+    speed_max_flow: FloatArray | None = None
 
     @property
     def steps(self) -> int:
@@ -318,8 +321,9 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
         "profiles": series.profiles,
         "x_edges": series.x_edges,
     }
-    if series.speed_max is not None:
-        arrays["speed_max"] = series.speed_max
+    for name in ("speed_max", "speed_max_flow"):
+        if getattr(series, name) is not None:
+            arrays[name] = getattr(series, name)
     np.savez_compressed(folder / "measured.npz", **arrays)  # type: ignore[arg-type]
     series.stats.to_parquet(folder / "measured_stats.parquet", index=False)
     meta = {**key, "n_grains": series.n_grains, "d_mean": series.d_mean}
@@ -354,7 +358,7 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
         stats = pd.read_parquet(folder / "measured_stats.parquet")
     except (OSError, ValueError, KeyError):  # missing or damaged: measure the run again
         return None
-    if key["measure"].get("surface") and "speed_max" not in arrays:  # written with it
+    if key["measure"].get("surface") and "speed_max_flow" not in arrays:  # written with it
         return None
     return CollapseSeries(
         label=label,
@@ -368,6 +372,7 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
         n_grains=int(meta["n_grains"]),
         d_mean=float(meta["d_mean"]),
         speed_max=arrays.get("speed_max"),
+        speed_max_flow=arrays.get("speed_max_flow"),
     )
 
 
@@ -399,11 +404,17 @@ def measure_series(
         surface = bed_surface(scene0, edges)  # the erodible layer's top, else the bed's
         times = rf.times.copy()
         front = np.empty(rf.n_frames)
-        speed_max = np.empty(rf.n_frames)
+        speeds, xs = [], []
         for k in range(rf.n_frames):
             frame = rf.frame(k)
             front[k] = surface_front(frame.positions, r, x_bins=edges, surface=surface, mask=free)
-            speed_max[k] = float(np.sqrt(np.max(np.sum(frame.velocities[free] ** 2, axis=1))))
+            speeds.append(np.sqrt(np.sum(frame.velocities[free] ** 2, axis=1)))
+            xs.append(frame.positions[free, 0])
+        speed_max = np.array([float(np.max(v)) for v in speeds])
+        reach = front[-1] + d_mean if np.isfinite(front[-1]) else np.inf
+        speed_max_flow = np.array(
+            [float(np.max(v[x <= reach], initial=0.0)) for v, x in zip(speeds, xs, strict=True)]
+        )
         profiles = []
         for t in profile_times:
             k = int(np.argmin(np.abs(times - t)))
@@ -427,6 +438,7 @@ def measure_series(
         n_grains=n_grains,
         d_mean=d_mean,
         speed_max=speed_max,
+        speed_max_flow=speed_max_flow,
     )
 
 

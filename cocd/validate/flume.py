@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from cocd.bench import estimate
 from cocd.bench.study import option
@@ -40,6 +41,8 @@ from cocd.validate import _common as base
 from cocd.validate._common import CollapseSeries, CollapseSettings, register
 
 __all__ = ["SEED_SLOPES", "STUDY", "Settings", "run"]
+
+FloatArray = NDArray[np.float64]
 
 #: Seed 001's bed inclinations for its glass beads, runs B00 to B20 (degrees).
 SEED_SLOPES = (0.0, 5.0, 10.0, 15.0, 20.0)
@@ -190,13 +193,16 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "`runout_m`, from the gate (x = L0) to the first bin where the deposit stands less "
         f"than `threshold` ({threshold:g} m) above that surface: the continuous deposit; "
         "`H0_m`: the pile as built, measured the same way at t = 0; "
-        f"`t_f_s`: the rest time, from which no free grain is faster than {rest_speed:g} "
-        "m/s (NaN: moving at the end, `still_moving`), and `quiet_s`, how long the run went "
-        "on after it (a short one may be a pause between bursts); `t_front_s`: from when "
+        f"`t_f_s`: the rest time, from which no free grain of the flow (not past the final "
+        f"front by more than a diameter) is faster than {rest_speed:g} m/s (NaN: moving at "
+        "the end, `still_moving`), and `quiet_s`, how long the run went on after it (a "
+        "short one may be a pause between bursts); `t_f_all_s`: the same over every free "
+        "grain, the bed far ahead included (seed 001's 'whole domain'); `speed_end`, "
+        "`speed_end_all`: the largest speeds at the end (m/s); `t_front_s`: from when "
         "the front (:func:`cocd.measure.surface_front`) stays within one diameter of its "
-        "final place; `front_m`: the front at the end, from the back wall; `speed_end`: the "
-        "largest speed at the end (m/s); `W_over_d`: the channel in diameters; `n_free`: "
-        "free grains (pile and bed); `s_per_step`: detection, set-up and solve per step."
+        "final place; `front_m`: the front at the end, from the back wall; `W_over_d`: "
+        "the channel in diameters; `n_free`: free grains (pile and bed); `s_per_step`: "
+        "detection, set-up and solve per step."
     )
     base.finish(
         out,
@@ -238,10 +244,8 @@ def _row(
     ahead = np.nonzero((centres > L0) & (last > 0))[0]
     thin = ahead[thickness[ahead] < threshold]
     end = min(max(float(edges[thin[0]]) if thin.size else bed_end, L0), bed_end)
-    speeds = s.speed_max if s.speed_max is not None else np.full(s.times.size, np.nan)
-    moving = np.nonzero(~(speeds <= rest_speed))[0]  # NaN (not measured) counts as moving
-    at_rest = moving.size == 0 or moving[-1] < s.times.size - 1
-    t_f = float(s.times[moving[-1] + 1]) if moving.size and at_rest else float(s.times[0])
+    t_f, flow_end = _rest(s.times, s.speed_max_flow, rest_speed)
+    t_f_all, all_end = _rest(s.times, s.speed_max, rest_speed)
     if np.isfinite(s.front[-1]):
         unsettled = np.nonzero(~(np.abs(s.front - s.front[-1]) <= d))[0]
         t_front = float(s.times[unsettled[-1] + 1]) if unsettled.size else float(s.times[0])
@@ -264,11 +268,13 @@ def _row(
         "front_m": float(s.front[-1]),
         "runout_m": float(end - L0),
         "runout_over_L0": float((end - L0) / L0),
-        "t_f_s": t_f if at_rest else np.nan,
-        "quiet_s": float(s.times[-1]) - t_f if at_rest else 0.0,
+        "t_f_s": t_f,
+        "quiet_s": float(s.times[-1]) - t_f if np.isfinite(t_f) else 0.0,
         "t_front_s": t_front,
-        "speed_end": float(speeds[-1]),
-        "still_moving": not at_rest,
+        "speed_end": flow_end,
+        "still_moving": not np.isfinite(t_f),
+        "t_f_all_s": t_f_all,
+        "speed_end_all": all_end,
         "reached_end": bool(
             base.cut_short(s.front, bed_end, d) or far.sum() < FAR_BINS or end >= bed_end - 2 * d
         ),
@@ -278,6 +284,17 @@ def _row(
         "compute_s": s.compute_s,
         "penetration_max": s.penetration_max,
     }
+
+
+def _rest(times: FloatArray, speeds: FloatArray | None, rest_speed: float) -> tuple[float, float]:
+    """The rest time, from which every saved frame's largest speed is at most
+    ``rest_speed`` (NaN: moving at the end, or not measured), and the last frame's."""
+    if speeds is None:
+        return np.nan, np.nan
+    moving = np.nonzero(~(speeds <= rest_speed))[0]
+    if moving.size and moving[-1] == times.size - 1:
+        return np.nan, float(speeds[-1])
+    return float(times[moving[-1] + 1] if moving.size else times[0]), float(speeds[-1])
 
 
 def _figure(
