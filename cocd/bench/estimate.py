@@ -68,6 +68,9 @@ RATES: dict[str, float] = {
     # Per worker, packings read from the cache: cocd validate avalanche3d --mus
     # 0.2,0.28,0.4 --seeds 3 --workers 2, its last two sequences (848 s, 54 962 units).
     "avalanche3d": 0.031,
+    # Per step of cocd validate flume --slopes 0 (35 087 free spheres, apgd at tol 1e-5,
+    # one run on 2 cores), steps 18 to 90: 33.3 s for 145.7 units.
+    "flume": 0.23,
 }
 #: Rate for a command without an entry (runout_scaling, stability_threshold): 2D
 #: collapse runs of 100 discs (cocd validate erodible --n 100 --until 0.3).
