@@ -315,9 +315,10 @@ def _figure(
             if sl != slope:
                 continue
             centres = 0.5 * (s.x_edges[:-1] + s.x_edges[1:])
-            if seed == 0:
-                ax.plot(centres, s.profiles[0], color="0.6", lw=1, label="t = 0")
-            ax.plot(centres, s.profiles[-1], lw=1.2, label=f"t = {s.times[-1]:g} s, packing {seed}")
+            first, last = (np.where(h > 0, h, np.nan) for h in (s.profiles[0], s.profiles[-1]))
+            if seed == 0:  # bins without a grain centred in them are left blank
+                ax.plot(centres, first, color="0.6", lw=1, label="t = 0")
+            ax.plot(centres, last, lw=1.2, label=f"t = {s.times[-1]:g} s, packing {seed}")
         ax.axvline(L0, color="0.3", ls=":", lw=1)
         ax.set_xlim(0.0, 1.2 * reach)
         ax.set_title(
