@@ -878,6 +878,22 @@ class CollapseSettings(RunSettings):
     )
 
 
+@dataclass(frozen=True)
+class LargeCollapseSettings(CollapseSettings):
+    """The options of the cases whose 3D runs reach tens of thousands of spheres: a
+    first-order backend at the seed's 3D tolerance, and no fallback."""
+
+    solver: str = option("apgd", "Convex backend of the runs.")
+    tol: float = option(1e-5, "Tolerance of the convex backend (the seed's 3D choice).")
+    fallback: tuple[str, ...] = option(
+        (),
+        "Backends tried when a step fails (comma-separated; none by default: a direct "
+        "solver on a step of tens of thousands of spheres needs hours and tens of GB, and "
+        "a failed step stops the run, which resumes from its last frame).",
+        kind="names",
+    )
+
+
 def register(name: str, settings: type, run: Callable[..., Any], **kw: Any) -> Study:
     """Record a seed validation as a ``cocd validate`` study."""
     kw.setdefault("outputs", (name,))

@@ -31,7 +31,7 @@ from cocd.bench import estimate
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
-from cocd.validate._common import CollapseSeries, CollapseSettings, register
+from cocd.validate._common import CollapseSeries, LargeCollapseSettings, register
 
 __all__ = ["SEED_FRONT_RATIO", "SEED_N2D", "SEED_N3D", "STUDY", "Settings", "run"]
 
@@ -47,18 +47,9 @@ SEED_N2D, SEED_N3D = 2154, 112459
 
 
 @dataclass(frozen=True)
-class Settings(CollapseSettings):
+class Settings(LargeCollapseSettings):
     """The options of ``cocd validate dims``."""
 
-    solver: str = option("apgd", "Convex backend of the COCD runs (2D and 3D).")
-    tol: float = option(1e-5, "Tolerance of the convex backend (the seed's 3D choice).")
-    fallback: tuple[str, ...] = option(
-        (),
-        "Backends tried when a step fails (comma-separated; none by default: a direct "
-        "solver on a 3D step of 100 000 spheres needs hours and tens of GB, and a failed "
-        "step stops the run, which resumes from its last frame).",
-        kind="names",
-    )
     n2d: tuple[int, ...] = option(
         (SEED_N2D,),
         "Discs in the 2D column, one count per size (comma-separated, paired with --n3d).",

@@ -38,7 +38,7 @@ from cocd.bench import estimate
 from cocd.bench.study import option
 from cocd.errors import CocdError
 from cocd.validate import _common as base
-from cocd.validate._common import CollapseSeries, CollapseSettings, register
+from cocd.validate._common import CollapseSeries, LargeCollapseSettings, register
 
 __all__ = ["SEED_SLOPES", "STUDY", "Settings", "run"]
 
@@ -52,17 +52,9 @@ FAR_BINS = 5
 
 
 @dataclass(frozen=True)
-class Settings(CollapseSettings):
+class Settings(LargeCollapseSettings):
     """The options of ``cocd validate flume``."""
 
-    solver: str = option("apgd", "Convex backend of the runs.")
-    tol: float = option(1e-5, "Tolerance of the convex backend (the seed's 3D choice).")
-    fallback: tuple[str, ...] = option(
-        (),
-        "Backends tried when a step fails (comma-separated; none by default: a failed "
-        "step stops the run, which resumes from its last frame).",
-        kind="names",
-    )
     slopes: tuple[float, ...] = option(
         SEED_SLOPES, "Flume inclinations (degrees; seed 001's B00 to B20).", kind="numbers"
     )
