@@ -125,6 +125,37 @@ def test_a_failed_run_among_workers_stops_the_rest_and_keeps_what_finished(tmp_p
     assert any(re.fullmatch(rest, line) for line in lines), lines
 
 
+def test_the_time_announced_for_a_resumed_run_counts_only_its_steps_left(tmp_path, monkeypatch):
+    """A run stopped part-way is resumed, not made again: the time said before it is
+    that of the steps it has left."""
+    how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
+    params = validate.base_params(30, 0.3)
+    short = validate.collapse_job(tmp_path, "t", "run", 0, params, how, dt=1e-3, until=0.09,
+                                  frame_dt=0.01)  # fmt: skip
+    validate.collapse_runs([short], progress=_quiet([]))
+    (tmp_path / "runs" / "t" / "run" / "measured.json").unlink()
+    longer = validate.collapse_job(tmp_path, "t", "run", 0, params, how, dt=1e-3, until=0.12,
+                                   frame_dt=0.01)  # fmt: skip
+    monkeypatch.setattr(estimate, "_current", {})
+    lines: list[str] = []
+    estimate.announce("t", [(longer.free_grains, longer.steps)], out=tmp_path,
+                      progress=lines.append)  # fmt: skip
+    validate.collapse_runs([longer], progress=lines.append)
+    whole = estimate._current["seconds"]
+    (rest,) = [line for line in lines if "0 of 1 runs kept, 1 partly made" in line]
+    said = float(re.search(r"should take (\d+) s", rest).group(1))
+    assert whole > 6.0 and said == pytest.approx(whole * 30 / 120, abs=1.0)  # 30 left
+    assert any(line.endswith("resumed at step 90") for line in lines)
+    # Started over (fresh), the whole run is made again: nothing is said of a rest.
+    fresh = validate.collapse_job(tmp_path, "t", "run", 0, params,
+                                  validate.RunSettings(solver="clarabel", tol=1e-8,
+                                                       fallback=(), fresh=True),
+                                  dt=1e-3, until=0.12, frame_dt=0.01)  # fmt: skip
+    lines = []
+    validate.collapse_runs([fresh], progress=lines.append)
+    assert not any("partly made" in line for line in lines)
+
+
 def test_twin_run_can_be_left_out_and_a_bad_twin_tolerance_is_refused(tmp_path):
     case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel")
     table = timestep.STUDY(out=tmp_path, progress=_quiet([]), twin_tol=0.0, **case)

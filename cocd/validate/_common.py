@@ -30,7 +30,7 @@ import dataclasses
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -548,13 +548,21 @@ def collapse_runs(
             series[k] = kept
         else:
             todo.append(k)
-    if todo and len(todo) < len(jobs):
+    # Steps the runs to make already hold in their run files (resumed, not made again).
+    held = {k: 0 if jobs[k].how.fresh else _steps_held(jobs[k]) for k in todo}
+    partly = sum(1 for k in todo if held[k] > 0)
+    if todo and (len(todo) < len(jobs) or partly):
         units = [estimate.work([(job.free_grains, job.steps)]) for job in jobs]
+        left = {
+            k: estimate.work([(jobs[k].free_grains, max(jobs[k].steps - held[k], 0.0))])
+            for k in todo
+        }
+        what = f"{len(jobs) - len(todo)} of {len(jobs)} runs kept"
         estimate.kept(
-            sum(units[k] for k in todo) / sum(units),
-            f"{len(jobs) - len(todo)} of {len(jobs)} runs kept",
+            sum(left.values()) / sum(units),
+            what + (f", {partly} partly made" if partly else ""),
             progress,
-            measured=_kept_rate(jobs, series, todo, units),
+            measured=_kept_rate(jobs, series, todo, left),
             runs=len(todo),
         )
     if workers == 1 or len(todo) < 2:
@@ -570,11 +578,26 @@ def collapse_runs(
     return [s for _, s in done]
 
 
+def _steps_held(job: CollapseJob) -> int:
+    """Steps already in ``job``'s run file (0: none, or a file that cannot be read)."""
+    from cocd.io.runfile import RunFile
+    from cocd.runs import RUN_FILE
+
+    path = job.folder / RUN_FILE
+    if not path.exists():
+        return 0
+    try:
+        with RunFile(path) as rf:
+            return int(rf.steps[-1]) if rf.n_frames else 0
+    except (OSError, CocdError):
+        return 0
+
+
 def _kept_rate(
     jobs: Sequence[CollapseJob],
     series: Sequence[CollapseSeries | None],
     todo: Sequence[int],
-    units: Sequence[float],
+    units: Mapping[int, float],
 ) -> tuple[float, float] | None:
     """``(seconds, work units)`` of the runs to make, each kind (:func:`_way`) timed at
     the rate of the kept runs of that kind, for :func:`cocd.bench.estimate.kept`; None
