@@ -146,6 +146,11 @@ def test_the_time_announced_for_a_resumed_run_counts_only_its_steps_left(tmp_pat
     said = float(re.search(r"should take (\d+) s", rest).group(1))
     assert whole > 6.0 and said == pytest.approx(whole * 30 / 120, abs=1.0)  # 30 left
     assert any(line.endswith("resumed at step 90") for line in lines)
+    # A run whose file holds every step is measured, not made.
+    (tmp_path / "runs" / "t" / "run" / "measured.json").unlink()
+    lines = []
+    validate.collapse_runs([longer], progress=lines.append)
+    assert any("0 of 1 runs kept, 1 made but not measured" in line for line in lines)
     # Started over (fresh), the whole run is made again: nothing is said of a rest.
     fresh = validate.collapse_job(tmp_path, "t", "run", 0, params,
                                   validate.RunSettings(solver="clarabel", tol=1e-8,
@@ -546,20 +551,13 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     again = dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
     assert sum(line.endswith("(kept)") for line in lines) == 4
     pd.testing.assert_frame_equal(again, table)
-    # The runs left are timed at the rate of the kept runs of their kind: with one 3D
-    # run kept, at its rate; with the 2D runs alone kept, not at theirs.
+    # A run whose measurements are lost but whose file is whole is measured again, not
+    # made again.
     kept_3d = sorted((tmp_path / "runs" / "dims").glob("3d_*/measured.json"))
     kept_3d[0].unlink()
     lines = []
-    dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
-    (rest,) = [line for line in lines if "3 of 4 runs kept" in line]
-    assert rest.endswith("(at the kept runs' rate)")
-    for kept in kept_3d:
-        kept.unlink()
-    lines = []
-    dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
-    (rest,) = [line for line in lines if "2 of 4 runs kept" in line]
-    assert "kept runs' rate" not in rest
+    pd.testing.assert_frame_equal(dims.STUDY(out=tmp_path, progress=lines.append, **kwargs), table)
+    assert any("3 of 4 runs kept, 1 made but not measured" in line for line in lines)
     # A second, finer size beside the first, whose runs are read back: one table and
     # one ensemble over both sizes, coarsest first, each size's grains against the seed's.
     both = dims.STUDY(out=tmp_path, progress=_quiet([]), **{**kwargs, "n2d": (150, 100),
@@ -580,6 +578,23 @@ def test_dims_compares_the_same_collapse_in_2d_and_3d(tmp_path):
     )
     summary = json.loads((tmp_path / "dims.meta.json").read_text())["summary"]
     assert "100 discs and 300 spheres" in summary and "150 discs and 500 spheres" in summary
+    # The runs to make are timed at the rate of the kept runs of their kind: with one 3D
+    # run kept, at its rate; with the 2D runs alone kept, not at theirs.
+    kept_3d = sorted((tmp_path / "runs" / "dims").glob("3d_n300_*/measured.json"))
+    for kept in kept_3d[:1]:
+        kept.unlink()
+        (kept.parent / "run.h5").unlink()
+    lines = []
+    dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
+    (rest,) = [line for line in lines if "3 of 4 runs kept" in line]
+    assert rest.endswith("(at the kept runs' rate)")
+    for kept in kept_3d:
+        kept.unlink()
+        (kept.parent / "run.h5").unlink()
+    lines = []
+    dims.STUDY(out=tmp_path, progress=lines.append, **kwargs)
+    (rest,) = [line for line in lines if "2 of 4 runs kept" in line]
+    assert "kept runs' rate" not in rest
 
 
 def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_frames(tmp_path):

@@ -550,8 +550,9 @@ def collapse_runs(
             todo.append(k)
     # Steps the runs to make already hold in their run files (resumed, not made again).
     held = {k: 0 if jobs[k].how.fresh else _steps_held(jobs[k]) for k in todo}
-    partly = sum(1 for k in todo if held[k] > 0)
-    if todo and (len(todo) < len(jobs) or partly):
+    whole = sum(1 for k in todo if held[k] > 0 and held[k] >= jobs[k].steps - 0.5)
+    partly = sum(1 for k in todo if held[k] > 0) - whole
+    if todo and (len(todo) < len(jobs) or partly or whole):
         units = [estimate.work([(job.free_grains, job.steps)]) for job in jobs]
         left = {
             k: estimate.work([(jobs[k].free_grains, max(jobs[k].steps - held[k], 0.0))])
@@ -560,7 +561,9 @@ def collapse_runs(
         what = f"{len(jobs) - len(todo)} of {len(jobs)} runs kept"
         estimate.kept(
             sum(left.values()) / sum(units),
-            what + (f", {partly} partly made" if partly else ""),
+            what
+            + (f", {partly} partly made" if partly else "")
+            + (f", {whole} made but not measured" if whole else ""),
             progress,
             measured=_kept_rate(jobs, series, todo, left),
             runs=len(todo),
