@@ -471,3 +471,18 @@ def test_a_step_exported_from_a_run_file_is_the_step_the_run_took(tmp_path):
     bad = runner.invoke(app, ["export", "fclib", run_file, "--out", str(tmp_path / "y.hdf5")])
     assert bad.exit_code == 2 and "its configuration is not one this cocd runs" in bad.output
     assert "no_such_option" in bad.output and "Traceback" not in bad.output
+
+
+def test_a_frame_pointer_of_infinity_is_a_damaged_run_file(tmp_path):
+    # Found by the fuzzing of run files: an infinite row pointer overflowed to int.
+    config = parse_config(
+        {"builder": "column_2d", "params": {"n_grains": 20},
+         "run": {"steps": 2, "frame_every": 1, "solver": "clarabel"}},
+        "scene.toml",
+    )  # fmt: skip
+    path = run(config, tmp_path).path
+    with h5py.File(path, "r+") as f:
+        del f["contacts/ptr"]
+        f["contacts/ptr"] = np.array([np.inf, 1.0, 2.0])
+    with RunFile(path) as rf, pytest.raises(RunFileError, match="damaged or incomplete"):
+        rf.frame(0)

@@ -326,7 +326,10 @@ def _copy_rows(ds: h5py.Dataset, group: h5py.Group, name: str, rows: int) -> Non
 
 
 # -- reading ------------------------------------------------------------------------------
-_DAMAGE = (KeyError, ValueError, TypeError, IndexError, OSError, AttributeError, RuntimeError)
+_DAMAGE = (
+    KeyError, ValueError, TypeError, IndexError, OSError, AttributeError, RuntimeError,
+    OverflowError,
+)  # fmt: skip
 
 
 @contextlib.contextmanager
