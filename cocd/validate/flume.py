@@ -244,7 +244,6 @@ def _row(
     else:
         t_front = np.nan
     stats = s.stats
-    per_step = (stats.detect_time + stats.setup_time + stats.solve_time).to_numpy()
     return {
         "seed": seed,
         "slope_deg": slope,
@@ -272,7 +271,7 @@ def _row(
         ),
         "steps": s.steps,
         "iterations_mean": float(stats.iterations.mean()) if len(stats) else np.nan,
-        "s_per_step": float(per_step.mean()) if per_step.size else np.nan,
+        "s_per_step": s.compute_s / s.steps if s.steps else np.nan,
         "compute_s": s.compute_s,
         "penetration_max": s.penetration_max,
     }
