@@ -104,9 +104,12 @@ def test_a_failed_run_among_workers_stops_the_rest_and_keeps_what_finished(tmp_p
     how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
     base = validate.base_params(30, 0.3)
     steps = dict(dt=1e-3, until=0.05, frame_dt=0.01)
+    # The run beside the failing one is long enough to be running when the failure comes
+    # (which takes a worker a second or two, more on a loaded machine): a slot freed by
+    # its end before then would rightly start the third.
     jobs = [
         validate.collapse_job(tmp_path, "t", "bad", 0, {**base, "n_grains": -5}, how, **steps),
-        validate.collapse_job(tmp_path, "t", "good", 0, base, how, **steps),
+        validate.collapse_job(tmp_path, "t", "good", 0, base, how, **{**steps, "until": 0.25}),
         validate.collapse_job(tmp_path, "t", "later", 0, base, how, **steps),
     ]
     lines: list[str] = []
@@ -114,7 +117,7 @@ def test_a_failed_run_among_workers_stops_the_rest_and_keeps_what_finished(tmp_p
         validate.collapse_runs(jobs, workers=2, progress=lines.append)
     assert (tmp_path / "runs" / "t" / "good" / "measured.json").exists()
     assert not (tmp_path / "runs" / "t" / "later").exists()
-    assert any(line.startswith("  good: step 50/50") for line in lines)
+    assert any(line.startswith("  good: step 250/250") for line in lines)
     with pytest.raises(CocdError, match="two runs of the case would share the folder"):
         validate.collapse_runs([jobs[1], jobs[1]], workers=2, progress=lines.append)
     # Called again: the kept run is read back, and the one left is timed at its rate.
