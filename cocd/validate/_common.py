@@ -424,13 +424,14 @@ def measure_series(
             )
 
         # The flow's grains are those not past the last frame's front by more than a
-        # diameter: that front is read first, so that each frame is read once after it
-        # and no frame's grains are held (a 3D flume's 220 frames would take 120 MB).
-        last_front = front_at(rf.frame(n - 1))
+        # diameter: the last frame is read first for that front, then each frame once,
+        # and no other frame's grains are held (a 3D flume's 220 frames would take 120 MB).
+        last = rf.frame(n - 1)
+        last_front = front_at(last)
         reach = last_front + d_mean if np.isfinite(last_front) else np.inf
         front, speed_max, speed_max_flow = np.empty(n), np.empty(n), np.empty(n)
         for k in range(n):
-            frame = rf.frame(k)
+            frame = last if k == n - 1 else rf.frame(k)
             front[k] = last_front if k == n - 1 else front_at(frame)
             speed = np.sqrt(np.sum(frame.velocities[free] ** 2, axis=1))
             speed_max[k] = float(np.max(speed))
