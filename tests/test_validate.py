@@ -164,6 +164,32 @@ def test_the_time_announced_for_a_resumed_run_counts_only_its_steps_left(tmp_pat
     assert not any("partly made" in line for line in lines)
 
 
+def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, monkeypatch):
+    """A job's free grains are its scene's; jobs of the same column share one build, and
+    the other packing's column is built apart."""
+    import cocd.builders
+
+    built = []
+    real = cocd.builders.column_collapse
+
+    def counted(*args, **kw):
+        built.append(kw.get("seed"))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(cocd.builders, "column_collapse", counted)
+    validate._built_scene.cache_clear()
+    how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
+    params = validate.base_params(30, 0.3)
+    steps = dict(dt=1e-3, until=0.01, frame_dt=0.01)
+    jobs = [validate.collapse_job(tmp_path, c, "run", seed, params, how, **steps)
+            for c, seed in [("a", 0), ("b", 0), ("a", 1)]]  # fmt: skip
+    counts = [job.free_grains for job in jobs + jobs]
+    assert len(built) == 2 and counts[:3] == counts[3:]
+    params0 = dict(jobs[0].params)
+    assert counts[0] == real(params0.pop("dim"), **params0).n_free == 30
+    assert validate.built_scene(jobs[2].params) is validate.built_scene(dict(jobs[2].params))
+
+
 def test_twin_run_can_be_left_out_and_a_bad_twin_tolerance_is_refused(tmp_path):
     case = dict(n=30, dts=[2e-3, 1e-3], times=[0.02], solver="clarabel")
     table = timestep.STUDY(out=tmp_path, progress=_quiet([]), twin_tol=0.0, **case)
