@@ -177,7 +177,7 @@ def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, m
         return real(*args, **kw)
 
     monkeypatch.setattr(cocd.builders, "column_collapse", counted)
-    validate._built_scene.cache_clear()
+    monkeypatch.setattr(validate, "_BUILT", {})
     how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
     params = validate.base_params(30, 0.3)
     steps = dict(dt=1e-3, until=0.01, frame_dt=0.01)
@@ -186,8 +186,14 @@ def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, m
     counts = [job.free_grains for job in jobs + jobs]
     assert len(built) == 2 and counts[:3] == counts[3:]
     params0 = dict(jobs[0].params)
-    assert counts[0] == real(params0.pop("dim"), **params0).n_free == 30
-    assert validate.built_scene(jobs[2].params) is validate.built_scene(dict(jobs[2].params))
+    scene = real(params0.pop("dim"), **params0)
+    assert counts[0] == scene.n_free == 30
+    x, r, column = scene.positions, scene.radii, scene.groups["column"]
+    bed = scene.groups["bed"]
+    column0 = validate.built_column(jobs[0].params)
+    assert column0.length == np.max(x[column, 0] + r[column])
+    assert column0.height == np.max(x[column, 1] + r[column]) - np.max(x[bed, 1] + r[bed])
+    assert len(built) == 2  # read back, not built again
 
 
 def test_twin_run_can_be_left_out_and_a_bad_twin_tolerance_is_refused(tmp_path):

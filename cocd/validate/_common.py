@@ -32,9 +32,8 @@ import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -46,7 +45,7 @@ from cocd.bench.study import register as study_register
 from cocd.errors import CocdError
 
 if TYPE_CHECKING:
-    from cocd.scene import Scene
+    from cocd.io.runfile import Frame
 
 FloatArray = NDArray[np.float64]
 
@@ -156,26 +155,45 @@ class CollapseJob:
     def free_grains(self) -> int:
         """Free grains of the run's scene, a bed layer's with the column's: the size of
         its step problems, which sets what a step costs."""
-        return int(built_scene(self.params).n_free)
+        return built_column(self.params).n_free
 
 
-def built_scene(params: Mapping[str, Any]) -> Scene:
-    """The scene :func:`cocd.builders.column_collapse` builds with ``params`` (``dim``
-    among them), built once per process: a case reads it before its runs, to estimate
-    them or to see which of its columns are the same. Read it, do not change it."""
-    import json
+class BuiltColumn(NamedTuple):
+    """What a case reads of a column's scene before and after its runs (to estimate
+    them, and to see which of its columns are the same): its free grains, and the
+    column's length and height (m) as built, its grains' reach from the back wall and
+    above the bed's top."""
 
-    return _built_scene(json.dumps(dict(params), sort_keys=True))
+    n_free: int
+    length: float
+    height: float
 
 
-@lru_cache(maxsize=16)
-def _built_scene(params_json: str) -> Scene:
+#: Columns built in this process, by their parameters (a few numbers each: the scenes
+#: themselves, up to tens of MB, are not kept).
+_BUILT: dict[str, BuiltColumn] = {}
+
+
+def built_column(params: Mapping[str, Any]) -> BuiltColumn:
+    """:class:`BuiltColumn` of the scene :func:`cocd.builders.column_collapse` builds with
+    ``params`` (``dim`` among them), built once per process."""
     import json
 
     from cocd.builders import column_collapse
 
-    params = json.loads(params_json)
-    return column_collapse(params.pop("dim"), **params)
+    key = json.dumps(dict(params), sort_keys=True, default=repr)
+    if key not in _BUILT:
+        kw = dict(params)
+        scene = column_collapse(kw.pop("dim"), **kw)
+        x, r = scene.positions, scene.radii
+        column, bed = scene.groups["column"], scene.groups.get("bed", slice(0, 0))
+        bed_top = float(np.max(x[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
+        _BUILT[key] = BuiltColumn(
+            n_free=int(scene.n_free),
+            length=float(np.max(x[column, 0] + r[column])),
+            height=float(np.max(x[column, -1] + r[column])) - bed_top,
+        )
+    return _BUILT[key]
 
 
 def collapse_job(
@@ -418,7 +436,7 @@ def measure_series(
         times = rf.times.copy()
         n = rf.n_frames
 
-        def front_at(frame: Any) -> float:
+        def front_at(frame: Frame) -> float:
             return float(
                 surface_front(frame.positions, r, x_bins=edges, surface=surface, mask=free)
             )
@@ -441,8 +459,9 @@ def measure_series(
             k = int(np.argmin(np.abs(times - t)))
             if abs(times[k] - t) > _FRAME_MATCH * dt:
                 raise CocdError(f"{label}: no frame saved at t = {t:g} s in {path}")
+            frame = last if k == n - 1 else rf.frame(k)
             prof = mass_profile(
-                rf.frame(k).positions, r, x_bins=edges, mask=free, connected=not surface_profiles
+                frame.positions, r, x_bins=edges, mask=free, connected=not surface_profiles
             )
             profiles.append(np.nan_to_num(prof.height - base, nan=0.0).clip(min=0.0))
         stats = rf.stats()

@@ -166,7 +166,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             label += f"_W{width_d:g}d_side{side_mu:g}"
         # The lattice holds a whole number of grains along the column: two ratios can
         # build the same column, which is run and fitted once, at its built ratio.
-        L_built, H_built = _built_column(base.seed_params(params, seed))
+        column = base.built_column(base.seed_params(params, seed))
+        L_built, H_built = column.length, column.height
         same = (side_mu, seed, round(L_built / diameter, 6), round(H_built / diameter, 6))
         if same in built:
             progress(
@@ -376,17 +377,6 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         progress,
     )
     return table
-
-
-def _built_column(params: dict[str, Any]) -> tuple[float, float]:
-    """Length and height (m) of the column :func:`cocd.builders.column_collapse` builds
-    with ``params``: its grains' reach from the back wall, and above the bed's top."""
-    scene = base.built_scene(params)
-    x, r = scene.positions, scene.radii
-    column, bed = scene.groups["column"], scene.groups["bed"]
-    bed_top = float(np.max(x[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
-    length = float(np.max(x[column, 0] + r[column]))
-    return length, float(np.max(x[column, -1] + r[column])) - bed_top
 
 
 def _grains(table: pd.DataFrame) -> str:
