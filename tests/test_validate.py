@@ -694,6 +694,15 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
     assert f"Hf / H0 {flat.Hf_over_H0:.3g}" in summary
     assert f"at rest at {flat.t_f_s:.3g} s" in summary
     assert (tmp_path / "flume_profiles.png").stat().st_size > 0
+    # Every frame's front from the gate and largest speeds, and their figure.
+    trace = pd.read_csv(tmp_path / "flume_trace.csv")
+    for row in (flat, slope):
+        run = trace[trace.slope_deg == row.slope_deg]
+        assert len(run) == row.steps + 1 and run.t.iloc[-1] == pytest.approx(1.0)
+        assert run.front_m.iloc[-1] == pytest.approx(row.front_m - 0.08)
+        assert run.speed_max_flow.iloc[-1] == pytest.approx(row.speed_end)
+        assert (run.speed_max_flow <= run.speed_max).all()
+    assert (tmp_path / "flume_front.png").stat().st_size > 0
     lines: list[str] = []
     again = flume.STUDY(out=tmp_path, progress=lines.append, **kwargs)
     assert sum(line.endswith("(kept)") for line in lines) == 2

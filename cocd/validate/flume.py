@@ -173,8 +173,21 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "(`_sd`, empty for one packing); `still_moving`: packings not at rest at the end "
         "(no rest time); `reached_end`: packings whose deposit reached the bed's end.",
     )
+    trace = _trace(made, cases, L0)
+    files += base.report.write_table(
+        out,
+        "flume_trace",
+        trace,
+        title="Seed 001's flume collapses: the front and the largest speeds at every frame",
+        intro="Per slope and packing, at every saved frame: `front_m`, the front "
+        "(:func:`cocd.measure.surface_front`) from the gate (x = L0; seed 001's Fig. 9a); "
+        "`speed_max_flow`, `speed_max`: the largest speed of a free grain of the flow (not "
+        "past the final front by more than a diameter) and of any free grain (m/s).",
+        floatfmt=".4g",
+    )
     reach = L0 + float(np.nanmax(table.runout_m))
     figure = _figure(out / "flume_profiles.png", made, cases, L0, reach, cfg)
+    front_figure = _front_figure(out / "flume_front.png", trace, table, rest_speed, cfg)
     summary = _summary(ensemble, table, d, L0, H0, W, layer, bed, dt, until, cfg)
     intro = (
         "Seed 001's measures, on the final frame's profile (the highest grain across the "
@@ -203,7 +216,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         table,
         intro,
         summary,
-        [*files, figure],
+        [*files, figure, front_figure],
         progress,
     )
     return table
@@ -321,6 +334,62 @@ def _figure(
         ax.grid(True, alpha=0.3)
     axes[-1, 0].set_xlabel("x from the back wall (m); dotted: the gate")
     axes[0, 0].legend(fontsize=7)
+    return base.save_figure(fig, path)
+
+
+def _trace(made: list[CollapseSeries], cases: list[tuple[int, float]], L0: float) -> pd.DataFrame:
+    """Every frame's front from the gate and largest speeds, per slope and packing."""
+    parts = []
+    for (seed, slope), s in zip(cases, made, strict=True):
+        n = s.times.size
+        none = np.full(n, np.nan)
+        parts.append(
+            pd.DataFrame(
+                {
+                    "slope_deg": slope,
+                    "seed": seed,
+                    "t": np.round(s.times, 9),
+                    "front_m": s.front - L0,
+                    "speed_max_flow": none if s.speed_max_flow is None else s.speed_max_flow,
+                    "speed_max": none if s.speed_max is None else s.speed_max,
+                }
+            )
+        )
+    return pd.concat(parts, ignore_index=True).sort_values(["slope_deg", "seed", "t"])
+
+
+def _front_figure(
+    path: Path, trace: pd.DataFrame, table: pd.DataFrame, rest_speed: float, cfg: Settings
+) -> Path:
+    """The front from the gate against time, per slope and packing (seed 001's Fig. 9a),
+    each run's settling time marked; below, the flow's largest speed against seed
+    001's 0.01 m/s."""
+    plt = base.pyplot()
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    slopes = sorted(set(trace.slope_deg))
+    for k, slope in enumerate(slopes):
+        colour = colours[k % len(colours)]
+        for seed, run in trace[trace.slope_deg == slope].groupby("seed"):
+            label = f"{slope:g} deg" if seed == min(trace.seed) else None
+            top.plot(run.t, run.front_m, color=colour, lw=1.2, label=label)
+            bottom.semilogy(run.t, run.speed_max_flow, color=colour, lw=0.8)
+            row = table[(table.slope_deg == slope) & (table.seed == seed)].iloc[0]
+            if np.isfinite(row.t_front_s):
+                settled = np.interp(row.t_front_s, run.t, run.front_m)
+                top.plot([row.t_front_s], [settled], "o", color=colour, ms=4)
+    bottom.axhline(rest_speed, color="0.3", ls=":", lw=1)
+    top.set_ylabel("front from the gate (m)")
+    top.set_title(
+        f"N = {int(table.n_free.iloc[0])} free spheres, mu = {cfg.mu:g}, mu_w = {cfg.side_mu:g}; "
+        "dots: the front settled",
+        fontsize=9,
+    )
+    top.legend(fontsize=8)
+    bottom.set_ylabel("largest speed in the flow (m/s)")
+    bottom.set_xlabel(f"t (s); dotted: seed 001's rest criterion, {rest_speed:g} m/s")
+    for ax in (top, bottom):
+        ax.grid(True, alpha=0.3)
     return base.save_figure(fig, path)
 
 
