@@ -706,6 +706,9 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
     lines: list[str] = []
     again = flume.STUDY(out=tmp_path, progress=lines.append, **kwargs)
     assert sum(line.endswith("(kept)") for line in lines) == 2
+    # The time announced from the recorded rate is said to be for work already done.
+    assert re.fullmatch(r"flume: .*expected .*", lines[0])
+    assert "flume: 2 of 2 runs kept; nothing is left to solve" in lines
     pd.testing.assert_frame_equal(again, table)
 
 

@@ -168,6 +168,9 @@ def kept(
     if _current.get("seconds") is None:
         return
     rest = min(max(fraction, 0.0), 1.0)
+    if rest == 0.0:  # the announced time was for work already done
+        progress(f"{_current['name']}: {what}; nothing is left to solve")
+        return
     workers = _current["workers"]
     busy = workers if runs is None else max(1, min(workers, int(runs)))
     seconds, units = measured if measured is not None else (0.0, 0.0)

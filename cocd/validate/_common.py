@@ -592,7 +592,7 @@ def collapse_runs(
     held = {k: 0 if jobs[k].how.fresh else _steps_held(jobs[k]) for k in todo}
     whole = sum(1 for k in todo if held[k] > 0 and held[k] >= jobs[k].steps - 0.5)
     partly = sum(1 for k in todo if held[k] > 0) - whole
-    if todo and (len(todo) < len(jobs) or partly or whole):
+    if jobs and (len(todo) < len(jobs) or partly or whole):
         units = [estimate.work([(job.free_grains, job.steps)]) for job in jobs]
         left = {
             k: estimate.work([(jobs[k].free_grains, max(jobs[k].steps - held[k], 0.0))])
