@@ -690,6 +690,8 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
             assert moving and moving[-1] < rf.n_frames - 1
             assert flat[column] == pytest.approx(rf.times[moving[-1] + 1])
         assert flat.t_f_all_s >= flat.t_f_s
+        ke = rf.stats().kinetic_energy.to_numpy()
+        assert flat.ke_end_over_peak == pytest.approx(ke[-1] / ke.max()) and ke[-1] < ke.max()
     summary = json.loads((tmp_path / "flume.meta.json").read_text())["summary"]
     assert f"Hf / H0 {flat.Hf_over_H0:.3g}" in summary
     assert f"at rest at {flat.t_f_s:.3g} s" in summary

@@ -205,9 +205,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "grain, the bed far ahead included (seed 001's 'whole domain'); `speed_end`, "
         "`speed_end_all`: the largest speeds at the end (m/s); `t_front_s`: from when "
         "the front (:func:`cocd.measure.surface_front`) stays within one diameter of its "
-        "final place; `front_m`: the front at the end, from the back wall; `W_over_d`: "
-        "the channel in diameters; `n_free`: free grains (pile and bed); `s_per_step`: "
-        "detection, set-up and solve per step."
+        "final place; `ke_end_over_peak`: the grains' kinetic energy after the last step "
+        "over its largest, a measure of rest that one rattler does not fail alone; "
+        "`front_m`: the front at the end, from the back wall; `W_over_d`: the channel in "
+        "diameters; `n_free`: free grains (pile and bed); `s_per_step`: detection, set-up "
+        "and solve per step."
     )
     base.finish(
         out,
@@ -282,12 +284,19 @@ def _row(
         "reached_end": bool(
             base.cut_short(s.front, bed_end, d) or far.sum() < FAR_BINS or end >= bed_end - 2 * d
         ),
+        "ke_end_over_peak": _ke_ratio(stats),
         "steps": s.steps,
         "iterations_mean": float(stats.iterations.mean()) if len(stats) else np.nan,
         "s_per_step": s.compute_s / s.steps if s.steps else np.nan,
         "compute_s": s.compute_s,
         "penetration_max": s.penetration_max,
     }
+
+
+def _ke_ratio(stats: pd.DataFrame) -> float:
+    """The grains' kinetic energy after the last step over its largest (NaN: none)."""
+    ke = stats.kinetic_energy.to_numpy(dtype=float) if len(stats) else np.zeros(0)
+    return float(ke[-1] / ke.max()) if ke.size and ke.max() > 0 else np.nan
 
 
 def _rest(times: FloatArray, speeds: FloatArray | None, rest_speed: float) -> tuple[float, float]:
