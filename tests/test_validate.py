@@ -952,3 +952,26 @@ def test_a_front_within_two_diameters_of_the_bed_end_is_cut_short():
     assert validate.cut_short([0.5, math.nan, 0.999], bed=1.0, d_mean=d)  # NaN: unmeasured
     assert not validate.cut_short([math.nan], bed=1.0, d_mean=d)
     assert not validate.cut_short([], bed=1.0, d_mean=d)
+
+
+def test_a_note_naming_rows_the_run_did_not_make_leaves_the_readme_but_not_the_run(tmp_path):
+    """A case run with other rows than its note was written for (e.g. one slope of five)
+    writes its tables and says in one line that the README was not rebuilt: it does not
+    end in an error after hours of runs."""
+    args = ["validate", "timestep", "--n", "30", "--dts", "2e-3,1e-3", "--times", "0.02",
+            "--solver", "clarabel", "--twin-tol", "0", "--out", str(tmp_path)]  # fmt: skip
+    first = runner.invoke(app, args)
+    assert first.exit_code == 0, first.output
+    assert f"wrote {tmp_path / 'README.md'}" in first.output
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "timestep.md").write_text("Error {{timestep.profile_error[dt=5e-4]}}.\n")
+    readme = (tmp_path / "README.md").read_text()
+    (tmp_path / "timestep.csv").unlink()
+    again = runner.invoke(app, args)
+    assert again.exit_code == 0, again.output
+    assert "Traceback" not in again.output
+    assert f"wrote {tmp_path / 'README.md'}" not in again.output
+    said = " ".join(again.output.split())
+    assert f"{tmp_path / 'README.md'} not rebuilt: timestep.md:" in said
+    assert "0 rows match, not one" in said and f"cocd bench readme --out {tmp_path}" in said
+    assert (tmp_path / "timestep.csv").exists() and (tmp_path / "README.md").read_text() == readme

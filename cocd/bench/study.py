@@ -160,10 +160,23 @@ class Study:
         settings = dataclasses.replace(settings, **{k: v for k, v in changes.items() if k in names})
         where = Path(out) if out is not None else DEFAULT_OUT[self.group]
         result = self.run(settings, out=where, **extra)
+        self.readme(where, extra.get("progress", print))
+        return result
+
+    def readme(self, where: Path, say: Callable[[str], Any] = print) -> Path | None:
+        """Rebuild ``where/README.md`` from the records and notes there; None, said, when
+        a note names a cell the tables do not hold (the run made other rows than those
+        the note was written for): the tables are written all the same."""
         from cocd.bench.report import write_readme
 
-        write_readme(where, heading=HEADINGS[self.group])
-        return result
+        try:
+            return write_readme(where, heading=HEADINGS[self.group])
+        except CocdError as exc:
+            say(
+                f"{where / 'README.md'} not rebuilt: {exc}. The tables are written; "
+                f"rebuild it with `cocd bench readme --out {where}` once the notes match them"
+            )
+            return None
 
 
 _STUDIES: dict[tuple[str, str], Study] = {}
@@ -296,8 +309,9 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
                     value = parse_list(value, kind, _flag(f))
                 values[f.name] = value
             writable_folder(where, "--out")
-            study(study.settings(**values), out=where)
-            typer.echo(f"wrote {where / 'README.md'}")
+            study.run(study.settings(**values), out=where)
+            if study.readme(where, typer.echo) is not None:
+                typer.echo(f"wrote {where / 'README.md'}")
         except CocdError as exc:
             fail(exc)
 
