@@ -30,6 +30,7 @@ from cocd.measure.energy import bed_energy_ratio, kinetic_energy, potential_ener
 from cocd.measure.flow import static_flowing_interface, velocity_profile
 from cocd.measure.front import (
     bed_surface,
+    bed_top,
     front_position,
     main_mass,
     relative_runout,
@@ -44,6 +45,7 @@ __all__ = [
     "MassProfile",
     "bed_energy_ratio",
     "bed_surface",
+    "bed_top",
     "front_position",
     "granular_volume",
     "kinetic_energy",

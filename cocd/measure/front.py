@@ -32,6 +32,7 @@ from cocd.scene import Scene
 
 __all__ = [
     "bed_surface",
+    "bed_top",
     "front_position",
     "main_mass",
     "relative_runout",
@@ -112,6 +113,15 @@ def front_position(
     return float(np.max(x[main, axis] + r[main]))
 
 
+def bed_top(scene: Scene) -> float:
+    """Top of the glued bed grains (group ``bed``) of a :func:`cocd.builders.column_collapse`
+    scene, else the floor (0): m, absolute z."""
+    bed = scene.groups.get("bed", slice(0, 0))
+    if bed.stop <= bed.start:
+        return 0.0
+    return float(np.max(scene.positions[bed, -1] + scene.radii[bed]))
+
+
 def bed_surface(scene: Scene, x_bins: ArrayLike) -> FloatArray:
     """Height of the bed's surface per bin before a flow (m, absolute z): what it flows over.
 
@@ -122,9 +132,8 @@ def bed_surface(scene: Scene, x_bins: ArrayLike) -> FloatArray:
     edges = bin_edges(x_bins, "x_bins")
     groups = scene.groups
     r = scene.radii
-    bed = groups.get("bed", slice(0, 0))
     x = scene.positions
-    base = float(np.max(x[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
+    base = bed_top(scene)
     surface = np.full(edges.size - 1, base)
     layer = groups.get("layer", slice(0, 0))
     if layer.stop > layer.start:

@@ -180,18 +180,18 @@ def built_column(params: Mapping[str, Any]) -> BuiltColumn:
     import json
 
     from cocd.builders import column_collapse
+    from cocd.measure import bed_top
 
     key = json.dumps(dict(params), sort_keys=True, default=repr)
     if key not in _BUILT:
         kw = dict(params)
         scene = column_collapse(kw.pop("dim"), **kw)
         x, r = scene.positions, scene.radii
-        column, bed = scene.groups["column"], scene.groups.get("bed", slice(0, 0))
-        bed_top = float(np.max(x[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
+        column = scene.groups["column"]
         _BUILT[key] = BuiltColumn(
             n_free=int(scene.n_free),
             length=float(np.max(x[column, 0] + r[column])),
-            height=float(np.max(x[column, -1] + r[column])) - bed_top,
+            height=float(np.max(x[column, -1] + r[column])) - bed_top(scene),
         )
     return _BUILT[key]
 
@@ -417,7 +417,7 @@ def measure_series(
     surface_profiles: bool = False,
 ) -> CollapseSeries:
     from cocd.io.runfile import RunFile
-    from cocd.measure import bed_surface, mass_profile, surface_front
+    from cocd.measure import bed_surface, bed_top, mass_profile, surface_front
 
     with RunFile(path) as rf:
         scene0 = rf.scene(0)
@@ -425,8 +425,7 @@ def measure_series(
         column[scene0.groups["column"]] = True
         r = rf.radii
         d_mean = 2.0 * float(r[column].mean())
-        bed = scene0.groups.get("bed", slice(0, 0))
-        base = float(np.max(scene0.positions[bed, -1] + r[bed])) if bed.stop > bed.start else 0.0
+        base = bed_top(scene0)
         free = ~scene0.fixed
         if x_max is None:
             x_max = float(np.max(scene0.positions[:, 0] + r))
@@ -435,6 +434,9 @@ def measure_series(
         surface = bed_surface(scene0, edges)  # the erodible layer's top, else the bed's
         times = rf.times.copy()
         n = rf.n_frames
+
+        def frame_at(k: int) -> Frame:  # the last frame, read first, is not read again
+            return last if k == n - 1 else rf.frame(k)
 
         def front_at(frame: Frame) -> float:
             return float(
@@ -449,7 +451,7 @@ def measure_series(
         reach = last_front + d_mean if np.isfinite(last_front) else np.inf
         front, speed_max, speed_max_flow = np.empty(n), np.empty(n), np.empty(n)
         for k in range(n):
-            frame = last if k == n - 1 else rf.frame(k)
+            frame = frame_at(k)
             front[k] = last_front if k == n - 1 else front_at(frame)
             speed = np.sqrt(np.sum(frame.velocities[free] ** 2, axis=1))
             speed_max[k] = float(np.max(speed))
@@ -459,9 +461,8 @@ def measure_series(
             k = int(np.argmin(np.abs(times - t)))
             if abs(times[k] - t) > _FRAME_MATCH * dt:
                 raise CocdError(f"{label}: no frame saved at t = {t:g} s in {path}")
-            frame = last if k == n - 1 else rf.frame(k)
             prof = mass_profile(
-                frame.positions, r, x_bins=edges, mask=free, connected=not surface_profiles
+                frame_at(k).positions, r, x_bins=edges, mask=free, connected=not surface_profiles
             )
             profiles.append(np.nan_to_num(prof.height - base, nan=0.0).clip(min=0.0))
         stats = rf.stats()
