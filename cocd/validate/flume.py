@@ -50,6 +50,10 @@ SEED_SLOPES = (0.0, 5.0, 10.0, 15.0, 20.0)
 #: Bins of the bed downstream of the final front that give its surface at the end.
 FAR_BINS = 5
 
+#: Rest times robust to rattlers: from when at most this fraction of the pile's grains
+#: (0.1 % and, for the criterion's sensitivity, 1 %) are faster than the rest speed.
+FEW = {"permil": 1e-3, "pct": 1e-2}
+
 
 @dataclass(frozen=True)
 class Settings(LargeCollapseSettings):
@@ -142,6 +146,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 frame_dt=dt,
                 profile_times=[0.0, until],
                 surface=True,
+                rest_speed=rest_speed,
             )
         )
     estimate.announce(
@@ -161,7 +166,15 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     ensemble = base.ensemble(
         table,
         ["slope_deg"],
-        ["t_f_s", "t_front_s", "Hf_m", "Hf_over_H0", "runout_m", "runout_over_L0"],
+        [
+            "t_f_s",
+            *(f"t_f_{name}_s" for name in FEW),
+            "t_front_s",
+            "Hf_m",
+            "Hf_over_H0",
+            "runout_m",
+            "runout_over_L0",
+        ],
         counts=["still_moving", "reached_end"],
     )
     files = base.report.write_table(
@@ -182,7 +195,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         intro="Per slope and packing, at every saved frame: `front_m`, the front "
         "(:func:`cocd.measure.surface_front`) from the gate (x = L0; seed 001's Fig. 9a); "
         "`speed_max_flow`, `speed_max`: the largest speed of a free grain of the flow (not "
-        "past the final front by more than a diameter) and of any free grain (m/s).",
+        "past the final front by more than a diameter) and of any free grain (m/s); "
+        f"`fast_flow`: how many grains of the flow are faster than {rest_speed:g} m/s.",
         floatfmt=".4g",
     )
     reach = L0 + float(np.nanmax(table.runout_m))
@@ -201,7 +215,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"`t_f_s`: the rest time, from which no free grain of the flow (not past the final "
         f"front by more than a diameter) is faster than {rest_speed:g} m/s (NaN: moving at "
         "the end, `still_moving`), and `quiet_s`, how long the run went on after it (a "
-        "short one may be a pause between bursts); `t_f_all_s`: the same over every free "
+        "short one may be a pause between bursts); `t_f_permil_s`, `t_f_pct_s`: the same "
+        "with at most 0.1 % and 1 % of the pile's grains of the flow faster (a rest time "
+        "that a few rattlers do not fail), and `fast_end`, how many are faster at the end; "
+        "`t_f_all_s`: the same over every free "
         "grain, the bed far ahead included (seed 001's 'whole domain'); `speed_end`, "
         "`speed_end_all`: the largest speeds at the end (m/s); `t_front_s`: from when "
         "the front (:func:`cocd.measure.surface_front`) stays within one diameter of its "
@@ -253,6 +270,10 @@ def _row(
     end = min(max(float(edges[thin[0]]) if thin.size else bed_end, L0), bed_end)
     t_f, flow_end = _rest(s.times, s.speed_max_flow, rest_speed)
     t_f_all, all_end = _rest(s.times, s.speed_max, rest_speed)
+    few = {
+        f"t_f_{name}_s": _rest(s.times, s.fast_flow, fraction * s.n_grains)[0]
+        for name, fraction in FEW.items()
+    }
     if np.isfinite(s.front[-1]):
         unsettled = np.nonzero(~(np.abs(s.front - s.front[-1]) <= d))[0]
         t_front = float(s.times[unsettled[-1] + 1]) if unsettled.size else float(s.times[0])
@@ -279,6 +300,8 @@ def _row(
         "t_front_s": t_front,
         "speed_end": flow_end,
         "still_moving": not np.isfinite(t_f),
+        **few,
+        "fast_end": float(s.fast_flow[-1]) if s.fast_flow is not None else np.nan,
         "t_f_all_s": t_f_all,
         "speed_end_all": all_end,
         "reached_end": bool(
@@ -300,8 +323,9 @@ def _ke_ratio(stats: pd.DataFrame) -> float:
 
 
 def _rest(times: FloatArray, speeds: FloatArray | None, rest_speed: float) -> tuple[float, float]:
-    """The rest time, from which every saved frame's largest speed is at most
-    ``rest_speed`` (NaN: moving at the end, or not measured), and the last frame's."""
+    """The rest time, from which every saved frame's largest speed (or count of fast
+    grains) is at most ``rest_speed`` (NaN: moving at the end, or not measured), and the
+    last frame's."""
     if speeds is None:
         return np.nan, np.nan
     moving = np.nonzero(~(speeds <= rest_speed))[0]
@@ -361,6 +385,7 @@ def _trace(made: list[CollapseSeries], cases: list[tuple[int, float]], L0: float
                     "front_m": s.front - L0,
                     "speed_max_flow": none if s.speed_max_flow is None else s.speed_max_flow,
                     "speed_max": none if s.speed_max is None else s.speed_max,
+                    "fast_flow": none if s.fast_flow is None else s.fast_flow,
                 }
             )
         )
@@ -426,9 +451,18 @@ def _summary(
             if moving < row["seeds"]
             else f"still moving at {until:g} s"
         )
+        runs = table[table.slope_deg == row["slope_deg"]]
+        quiet = int(np.isfinite(runs.t_f_permil_s.to_numpy(dtype=float)).sum())
+        few = (
+            f"all but 0.1 % of the pile at rest from {pm(row, 't_f_permil_s')} s"
+            + (f" in {quiet} of {row['seeds']} packings" if quiet < row["seeds"] else "")
+            if quiet
+            else f"more than 0.1 % of the pile moving at {until:g} s"
+        )
         parts.append(
             f"{row['slope_deg']:g} deg: Hf / H0 {pm(row, 'Hf_over_H0')}, runout from the "
-            f"gate {pm(row, 'runout_m')} m, {rest}, front settled at {pm(row, 't_front_s')} s"
+            f"gate {pm(row, 'runout_m')} m, {rest} ({few}), front settled at "
+            f"{pm(row, 't_front_s')} s"
         )
     n_free = ", ".join(str(n) for n in sorted(set(table.n_free)))
     return (
