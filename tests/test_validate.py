@@ -701,11 +701,13 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
             busy = [k for k in range(rf.n_frames) if fast[k] > share * pile]
             assert busy and flat[column] == pytest.approx(rf.times[busy[-1] + 1])
         assert flat.t_f_pct_s <= flat.t_f_permil_s <= flat.t_f_s and flat.fast_end == 0
+        assert (table.n_pile == pile).all()
         ke = rf.stats().kinetic_energy.to_numpy()
         assert flat.ke_end_over_peak == pytest.approx(ke[-1] / ke.max()) and ke[-1] < ke.max()
     summary = json.loads((tmp_path / "flume.meta.json").read_text())["summary"]
     assert f"Hf / H0 {flat.Hf_over_H0:.3g}" in summary
     assert f"at rest at {flat.t_f_s:.3g} s" in summary
+    assert f"(all but 0.1 % of the pile at rest from {flat.t_f_permil_s:.3g} s)" in summary
     assert (tmp_path / "flume_profiles.png").stat().st_size > 0
     # Every frame's front from the gate and largest speeds, and their figure.
     trace = pd.read_csv(tmp_path / "flume_trace.csv")
