@@ -99,9 +99,11 @@ class CollapseSeries:
     #: measurements kept before they were measured.
     speed_max: FloatArray | None = None
     speed_max_flow: FloatArray | None = None
-    #: How many free grains of the flow (as for ``speed_max_flow``) are faster than the
-    #: job's ``rest_speed`` at each saved frame; None when not asked.
-    fast_flow: FloatArray | None = None
+    #: At each saved frame (rows), for each of the job's shares ``few`` (columns): the
+    #: speed that all the free grains of the flow (as for ``speed_max_flow``) but that
+    #: share of the column's grain count stay at or below (the ``floor(share * n) + 1``-th
+    #: largest; 0 when the flow holds fewer grains); None when not asked.
+    speed_few_flow: FloatArray | None = None
 
     @property
     def steps(self) -> int:
@@ -149,9 +151,9 @@ class CollapseJob:
     #: Profiles of the free surface (the highest free grain per bin) rather than of the
     #: main mass (:func:`cocd.measure.mass_profile`'s ``connected``).
     surface: bool = False
-    #: Count the flow's grains faster than this at each frame (m/s;
-    #: :attr:`CollapseSeries.fast_flow`); None: not counted.
-    rest_speed: float | None = None
+    #: Shares of the column's grain count left out of the flow's speed at each frame
+    #: (:attr:`CollapseSeries.speed_few_flow`); none: not measured.
+    few: tuple[float, ...] = ()
 
     @property
     def steps(self) -> float:
@@ -220,7 +222,7 @@ def collapse_job(
     bin_width: float | None = None,
     x_max: float | None = None,
     surface: bool = False,
-    rest_speed: float | None = None,
+    few: Sequence[float] = (),
 ) -> CollapseJob:
     """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
 
@@ -249,7 +251,7 @@ def collapse_job(
         bin_width=bin_width,
         x_max=x_max,
         surface=surface,
-        rest_speed=rest_speed,
+        few=tuple(float(f) for f in few),
     )
 
 
@@ -311,7 +313,7 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
         job.x_max,
         job.dt,
         job.surface,
-        job.rest_speed,
+        job.few,
     )
     write_measured(folder, key, series)
     return dataclasses.replace(series, steps_made=summary.steps - (summary.resumed_from_step or 0))
@@ -348,7 +350,7 @@ def _run_key(job: CollapseJob) -> tuple[Any, dict[str, Any]]:
             "x_max": job.x_max,
             # Only when set: the keys of the measurements kept before it stay the same.
             **({"surface": True} if job.surface else {}),
-            **({"rest_speed": job.rest_speed} if job.rest_speed is not None else {}),
+            **({"few": list(job.few)} if job.few else {}),
         },
     }
     return config, key
@@ -368,7 +370,7 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
         "profiles": series.profiles,
         "x_edges": series.x_edges,
     }
-    for name in ("speed_max", "speed_max_flow", "fast_flow"):
+    for name in ("speed_max", "speed_max_flow", "speed_few_flow"):
         if getattr(series, name) is not None:
             arrays[name] = getattr(series, name)
     np.savez_compressed(folder / "measured.npz", **arrays)  # type: ignore[arg-type]
@@ -407,7 +409,7 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
         return None
     if key["measure"].get("surface") and "speed_max_flow" not in arrays:  # written with it
         return None
-    if key["measure"].get("rest_speed") is not None and "fast_flow" not in arrays:
+    if key["measure"].get("few") and "speed_few_flow" not in arrays:
         return None
     return CollapseSeries(
         label=label,
@@ -422,7 +424,7 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
         d_mean=float(meta["d_mean"]),
         speed_max=arrays.get("speed_max"),
         speed_max_flow=arrays.get("speed_max_flow"),
-        fast_flow=arrays.get("fast_flow"),
+        speed_few_flow=arrays.get("speed_few_flow"),
     )
 
 
@@ -434,7 +436,7 @@ def measure_series(
     x_max: float | None,
     dt: float,
     surface_profiles: bool = False,
-    rest_speed: float | None = None,
+    few: Sequence[float] = (),
 ) -> CollapseSeries:
     from cocd.io.runfile import RunFile
     from cocd.measure import bed_surface, bed_top, mass_profile, surface_front
@@ -470,7 +472,9 @@ def measure_series(
         last_front = front_at(last)
         reach = last_front + d_mean if np.isfinite(last_front) else np.inf
         front, speed_max, speed_max_flow = np.empty(n), np.empty(n), np.empty(n)
-        fast_flow = np.zeros(n)
+        # The few fastest grains left out: the (floor(share * n) + 1)-th largest speed.
+        ranks = [math.floor(share * int(column.sum())) for share in few]
+        speed_few_flow = np.zeros((n, len(ranks)))
         for k in range(n):
             frame = frame_at(k)
             front[k] = last_front if k == n - 1 else front_at(frame)
@@ -478,8 +482,11 @@ def measure_series(
             flow = speed[frame.positions[free, 0] <= reach]
             speed_max[k] = float(np.max(speed))
             speed_max_flow[k] = float(np.max(flow, initial=0.0))
-            if rest_speed is not None:
-                fast_flow[k] = float(np.count_nonzero(flow > rest_speed))
+            for j, rank in enumerate(ranks):
+                if rank < flow.size:
+                    speed_few_flow[k, j] = float(
+                        np.partition(flow, flow.size - 1 - rank)[flow.size - 1 - rank]
+                    )
         profiles = []
         for t in profile_times:
             k = int(np.argmin(np.abs(times - t)))
@@ -504,7 +511,7 @@ def measure_series(
         d_mean=d_mean,
         speed_max=speed_max,
         speed_max_flow=speed_max_flow,
-        fast_flow=fast_flow if rest_speed is not None else None,
+        speed_few_flow=speed_few_flow if ranks else None,
     )
 
 

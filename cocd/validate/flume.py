@@ -50,8 +50,9 @@ SEED_SLOPES = (0.0, 5.0, 10.0, 15.0, 20.0)
 #: Bins of the bed downstream of the final front that give its surface at the end.
 FAR_BINS = 5
 
-#: Rest times robust to rattlers: from when at most this fraction of the pile's grains
-#: (0.1 % and, for the criterion's sensitivity, 1 %) are faster than the rest speed.
+#: Rest times robust to rattlers: from when no grain of the flow is faster than the rest
+#: speed but at most this share of the pile's grain count (0.1 % and, for the criterion's
+#: sensitivity, 1 %); the grains counted are the flow's, the bed under it included.
 FEW = {"permil": 1e-3, "pct": 1e-2}
 
 
@@ -146,7 +147,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 frame_dt=dt,
                 profile_times=[0.0, until],
                 surface=True,
-                rest_speed=rest_speed,
+                few=tuple(FEW.values()),
             )
         )
     estimate.announce(
@@ -196,7 +197,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "(:func:`cocd.measure.surface_front`) from the gate (x = L0; seed 001's Fig. 9a); "
         "`speed_max_flow`, `speed_max`: the largest speed of a free grain of the flow (not "
         "past the final front by more than a diameter) and of any free grain (m/s); "
-        f"`fast_flow`: how many grains of the flow are faster than {rest_speed:g} m/s.",
+        "`speed_permil_flow`, `speed_pct_flow`: the speed that all grains of the flow but "
+        "0.1 % and 1 % of the pile's grain count stay at or below (m/s).",
         floatfmt=".4g",
     )
     reach = L0 + float(np.nanmax(table.runout_m))
@@ -216,8 +218,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         f"front by more than a diameter) is faster than {rest_speed:g} m/s (NaN: moving at "
         "the end, `still_moving`), and `quiet_s`, how long the run went on after it (a "
         "short one may be a pause between bursts); `t_f_permil_s`, `t_f_pct_s`: the same "
-        "with at most 0.1 % and 1 % of the pile's grains of the flow faster (a rest time "
-        "that a few rattlers do not fail), and `fast_end`, how many are faster at the end; "
+        "with as many grains of the flow (the bed under it included) allowed to be faster "
+        "as 0.1 % and 1 % of the pile's grain count (a rest time that a few rattlers do "
+        "not fail), and `speed_end_permil`, `speed_end_pct`: the speed all but those stay "
+        "under at the end (m/s); "
         "`t_f_all_s`: the same over every free "
         "grain, the bed far ahead included (seed 001's 'whole domain'); `speed_end`, "
         "`speed_end_all`: the largest speeds at the end (m/s); `t_front_s`: from when "
@@ -270,10 +274,10 @@ def _row(
     end = min(max(float(edges[thin[0]]) if thin.size else bed_end, L0), bed_end)
     t_f, flow_end = _rest(s.times, s.speed_max_flow, rest_speed)
     t_f_all, all_end = _rest(s.times, s.speed_max, rest_speed)
-    few = {
-        f"t_f_{name}_s": _rest(s.times, s.fast_flow, fraction * s.n_grains)[0]
-        for name, fraction in FEW.items()
-    }
+    few: dict[str, float] = {}
+    for j, name in enumerate(FEW):
+        speeds = None if s.speed_few_flow is None else s.speed_few_flow[:, j]
+        few[f"t_f_{name}_s"], few[f"speed_end_{name}"] = _rest(s.times, speeds, rest_speed)
     if np.isfinite(s.front[-1]):
         unsettled = np.nonzero(~(np.abs(s.front - s.front[-1]) <= d))[0]
         t_front = float(s.times[unsettled[-1] + 1]) if unsettled.size else float(s.times[0])
@@ -302,7 +306,6 @@ def _row(
         "speed_end": flow_end,
         "still_moving": not np.isfinite(t_f),
         **few,
-        "fast_end": float(s.fast_flow[-1]) if s.fast_flow is not None else np.nan,
         "t_f_all_s": t_f_all,
         "speed_end_all": all_end,
         "reached_end": bool(
@@ -324,9 +327,9 @@ def _ke_ratio(stats: pd.DataFrame) -> float:
 
 
 def _rest(times: FloatArray, speeds: FloatArray | None, rest_speed: float) -> tuple[float, float]:
-    """The rest time, from which every saved frame's largest speed (or count of fast
-    grains) is at most ``rest_speed`` (NaN: moving at the end, or not measured), and the
-    last frame's."""
+    """The rest time, from which every saved frame's speed (the largest, or the one the
+    flow's grains but a few stay under) is at most ``rest_speed`` (NaN: moving at the
+    end, or not measured), and the last frame's."""
     if speeds is None:
         return np.nan, np.nan
     moving = np.nonzero(~(speeds <= rest_speed))[0]
@@ -386,7 +389,12 @@ def _trace(made: list[CollapseSeries], cases: list[tuple[int, float]], L0: float
                     "front_m": s.front - L0,
                     "speed_max_flow": none if s.speed_max_flow is None else s.speed_max_flow,
                     "speed_max": none if s.speed_max is None else s.speed_max,
-                    "fast_flow": none if s.fast_flow is None else s.fast_flow,
+                    **{
+                        f"speed_{name}_flow": none
+                        if s.speed_few_flow is None
+                        else s.speed_few_flow[:, j]
+                        for j, name in enumerate(FEW)
+                    },
                 }
             )
         )
@@ -410,16 +418,18 @@ def _front_figure(
             label = f"{slope:g} deg" if seed == min(trace.seed) else None
             top.plot(run.t, run.front_m, color=colour, lw=1.2, label=label)
             middle.semilogy(run.t, run.speed_max_flow, color=colour, lw=0.8)
-            fast = run.fast_flow.to_numpy(dtype=float)
-            bottom.semilogy(run.t, np.where(fast > 0, fast, np.nan), color=colour, lw=0.8)
+            for name, style in zip(FEW, ("-", "--"), strict=False):
+                speed = run[f"speed_{name}_flow"].to_numpy(dtype=float)
+                bottom.semilogy(
+                    run.t, np.where(speed > 0, speed, np.nan), style, color=colour, lw=0.8
+                )
             row = table[(table.slope_deg == slope) & (table.seed == seed)].iloc[0]
             if np.isfinite(row.t_front_s):
                 settled = np.interp(row.t_front_s, run.t, run.front_m)
                 top.plot([row.t_front_s], [settled], "o", color=colour, ms=4)
     middle.axhline(rest_speed, color="0.3", ls=":", lw=1)
-    pile = int(table.n_pile.iloc[0])
-    for share in FEW.values():
-        bottom.axhline(share * pile, color="0.3", ls=":", lw=1)
+    pile = ", ".join(str(n) for n in sorted(set(table.n_pile)))
+    bottom.axhline(rest_speed, color="0.3", ls=":", lw=1)
     top.set_ylabel("front from the gate (m)")
     top.set_title(
         f"N = {int(table.n_free.iloc[0])} free spheres, mu = {cfg.mu:g}, mu_w = {cfg.side_mu:g}; "
@@ -429,11 +439,11 @@ def _front_figure(
     top.legend(fontsize=8)
     middle.set_ylabel("largest speed in the flow (m/s)")
     middle.set_title(f"dotted: seed 001's rest criterion, {rest_speed:g} m/s", fontsize=9)
-    bottom.set_ylabel(f"grains faster than {rest_speed:g} m/s")
+    bottom.set_ylabel("speed of the flow but a few (m/s)")
     bottom.set_title(
-        "dotted: "
-        + " and ".join(f"{share * 100:g} %" for share in FEW.values())
-        + f" of the pile's {pile} grains",
+        "the speed all grains of the flow stay under but "
+        + " (solid) and ".join(f"{share * 100:g} %" for share in FEW.values())
+        + f" (dashed) of the pile's {pile} grains",
         fontsize=9,
     )
     bottom.set_xlabel("t (s)")
@@ -467,15 +477,17 @@ def _summary(
             else f"still moving at {until:g} s"
         )
         runs = table[table.slope_deg == row["slope_deg"]]
-        few = f"more than {max(FEW.values()) * 100:g} % of the pile moving at {until:g} s"
-        for name, share in FEW.items():  # the smallest share allowed that is reached
+        for name, share in FEW.items():  # the smallest share that every packing reaches
             quiet = int(np.isfinite(runs[f"t_f_{name}_s"].to_numpy(dtype=float)).sum())
-            if quiet:
-                when = pm(row, f"t_f_{name}_s")
-                few = f"all but {share * 100:g} % of the pile at rest from {when} s" + (
-                    f" in {quiet} of {row['seeds']} packings" if quiet < row["seeds"] else ""
-                )
+            if quiet == row["seeds"] or share == max(FEW.values()):
                 break
+        few = (
+            f"all but {share * 100:g} % of the pile's count at rest from "
+            f"{pm(row, f't_f_{name}_s')} s"
+            + (f" in {quiet} of {row['seeds']} packings" if quiet < row["seeds"] else "")
+            if quiet
+            else f"more than {share * 100:g} % of the pile's count moving at {until:g} s"
+        )
         parts.append(
             f"{row['slope_deg']:g} deg: Hf / H0 {pm(row, 'Hf_over_H0')}, runout from the "
             f"gate {pm(row, 'runout_m')} m, {rest} ({few}), front settled at "
