@@ -733,6 +733,52 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
     assert re.fullmatch(r"flume: .*expected .*", lines[0])
     assert "flume: 2 of 2 runs kept; nothing is left to solve" in lines
     pd.testing.assert_frame_equal(again, table)
+    # Kept without the speeds of the flow but a few, a run is measured again from its
+    # run file, not solved again.
+    kept = tmp_path / "runs" / "flume" / "slope0_d10mm_W4cm_L0.5m_mu0.25" / "measured.npz"
+    with np.load(kept) as data:
+        arrays = {name: data[name] for name in data.files if name != "speed_few_flow"}
+    np.savez_compressed(kept, **arrays)
+    lines.clear()
+    again = flume.STUDY(out=tmp_path, progress=lines.append, **kwargs)
+    assert sum(line.endswith("(kept)") for line in lines) == 1
+    assert not any(": step " in line for line in lines)
+    pd.testing.assert_frame_equal(again, table)
+    with np.load(kept) as data:
+        assert "speed_few_flow" in data.files
+
+
+def test_flume_summary_gives_the_smallest_share_every_packing_reaches():
+    """The summary's rest time robust to rattlers: the smallest share of the pile's count
+    that every packing reaches, else the largest share, with how many packings reach it."""
+    from cocd.validate import _common as base
+    from cocd.validate import flume
+
+    nan = np.nan
+    table = pd.DataFrame(
+        {
+            "seed": [0, 1, 0, 1, 0, 1, 0, 1],
+            "slope_deg": [0.0, 0.0, 10.0, 10.0, 15.0, 15.0, 20.0, 20.0],
+            "t_f_s": nan,
+            "t_f_permil_s": [1.0, 1.2, 1.5, nan, nan, nan, nan, nan],
+            "t_f_pct_s": [0.8, 1.0, 1.1, 1.3, 1.9, nan, nan, nan],
+            "still_moving": True,
+            "reached_end": False,
+            "n_free": 100,
+        }
+    )
+    for column in ("t_front_s", "Hf_m", "Hf_over_H0", "runout_m", "runout_over_L0"):
+        table[column] = 0.5
+    columns = ["t_f_s", "t_f_permil_s", "t_f_pct_s", "t_front_s", "Hf_m", "Hf_over_H0",
+               "runout_m", "runout_over_L0"]  # fmt: skip
+    ensemble = base.ensemble(table, ["slope_deg"], columns, ["still_moving", "reached_end"])
+    text = flume._summary(
+        ensemble, table, 0.004, 0.2, 0.1, 0.06, 0.02, 1.52, 0.01, 2.2, flume.Settings()
+    )
+    assert "0 deg: " in text and "(all but 0.1 % of the pile's count at rest from 1.1 +- " in text
+    assert "(all but 1 % of the pile's count at rest from 1.2 +- " in text  # 10 deg
+    assert "(all but 1 % of the pile's count at rest from 1.9 s in 1 of 2 packings)" in text
+    assert "(more than 1 % of the pile's count moving at 2.2 s)" in text  # 20 deg
 
 
 def test_avalanche_angle_exceeds_stop_angle_and_both_grow_with_friction(tmp_path, monkeypatch):
