@@ -482,11 +482,12 @@ def measure_series(
             flow = speed[frame.positions[free, 0] <= reach]
             speed_max[k] = float(np.max(speed))
             speed_max_flow[k] = float(np.max(flow, initial=0.0))
-            for j, rank in enumerate(ranks):
-                if rank < flow.size:
-                    speed_few_flow[k, j] = float(
-                        np.partition(flow, flow.size - 1 - rank)[flow.size - 1 - rank]
-                    )
+            # One partition puts every asked rank in place (0 where the flow is smaller).
+            kept = [(j, flow.size - 1 - rank) for j, rank in enumerate(ranks) if rank < flow.size]
+            if kept:
+                ordered = np.partition(flow, [at for _, at in kept])
+                for j, at in kept:
+                    speed_few_flow[k, j] = float(ordered[at])
         profiles = []
         for t in profile_times:
             k = int(np.argmin(np.abs(times - t)))
