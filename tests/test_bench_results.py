@@ -119,7 +119,12 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     """`cocd bench readme` fills a note's placeholders from the tables beside it: one
     cell, an aggregate, a format; a placeholder without its row is a one-line error."""
     table = pd.DataFrame(
-        {"t": [0.1, 0.2, 0.3], "case": ["a", "b", "b"], "error": [0.5, 0.25, 0.125]}
+        {
+            "t": [0.1, 0.2, 0.3],
+            "case": ["a", "b", "b"],
+            "error": [0.5, 0.25, 0.125],
+            "rest_s": [1.5, None, 2.0],
+        }
     )
     write_table(tmp_path, "demo", table, title="Demo")
     write_meta(tmp_path, "demo", title="Demo", files=["demo.csv"], summary="")
@@ -127,12 +132,17 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     notes.mkdir()
     (notes / "demo.md").write_text(
         "At t = 0.2 s the error is {{demo.error[t=0.2]}} ({{demo.error[t=0.2]:.1%}}); "
-        "case b ranges to {{max demo.error[case=b]}} over {{count demo.error[case=b]}} rows."
+        "case b ranges to {{max demo.error[case=b]}} over {{count demo.error[case=b]}} rows. "
+        "At rest from {{demo.rest_s[t=0.1]:.2f|never}} s and "
+        "{{demo.rest_s[t=0.2]:.2f|not by the end}}; {{demo.rest_s[t=0.3]:|none}} s."
     )
     result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     text = (tmp_path / "README.md").read_text()
     assert "At t = 0.2 s the error is 0.25 (25.0%); case b ranges to 0.25 over 2 rows." in text
+    # An empty cell is written as the placeholder says, after its bar; a full one as
+    # its format says (the default when none is given before the bar).
+    assert "At rest from 1.50 s and not by the end; 2 s." in text
     # Each way of naming what the table does not hold is refused, naming the placeholder.
     for bad, why in (
         ("{{demo.error[t=0.4]}}", "0 rows match, not one"),
@@ -141,6 +151,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         ("{{other.error}}", "no table"),
         ("{{demo.error[time=0.1]}}", "bad condition"),
         ("{{max demo.error[case=c]}}", "no row matches"),
+        ("{{demo.rest_s[t=0.2]:.2f}}", "the cell is empty"),
         ("{{demo.error[t=0.1]:}}", "not a placeholder cocd can read"),
     ):
         (notes / "demo.md").write_text(f"A number: {bad}.")
