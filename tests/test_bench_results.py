@@ -134,7 +134,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         "At t = 0.2 s the error is {{demo.error[t=0.2]}} ({{demo.error[t=0.2]:.1%}}); "
         "case b ranges to {{max demo.error[case=b]}} over {{count demo.error[case=b]}} rows. "
         "At rest from {{demo.rest_s[t=0.1]:.2f|never}} s and "
-        "{{demo.rest_s[t=0.2]:.2f|not by the end}}; {{demo.rest_s[t=0.3]:|none}} s."
+        "{{demo.rest_s[t=0.2]:.2f|not by the end}}; {{demo.rest_s[t=0.3]|none}} s, "
+        "{{max demo.rest_s[t=0.2] | never}}."
     )
     result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
@@ -142,7 +143,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     assert "At t = 0.2 s the error is 0.25 (25.0%); case b ranges to 0.25 over 2 rows." in text
     # An empty cell is written as the placeholder says, after its bar; a full one as
     # its format says (the default when none is given before the bar).
-    assert "At rest from 1.50 s and not by the end; 2 s." in text
+    assert "At rest from 1.50 s and not by the end; 2 s, never." in text
     # Each way of naming what the table does not hold is refused, naming the placeholder.
     for bad, why in (
         ("{{demo.error[t=0.4]}}", "0 rows match, not one"),
@@ -152,6 +153,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         ("{{demo.error[time=0.1]}}", "bad condition"),
         ("{{max demo.error[case=c]}}", "no row matches"),
         ("{{demo.rest_s[t=0.2]:.2f}}", "the cell is empty"),
+        ("{{demo.rest_s[t=0.2]|}}", "not a placeholder cocd can read"),
         ("{{demo.error[t=0.1]:}}", "not a placeholder cocd can read"),
     ):
         (notes / "demo.md").write_text(f"A number: {bad}.")

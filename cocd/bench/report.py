@@ -309,7 +309,7 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
 
 _PLACEHOLDER = re.compile(
     r"\{\{\s*(?:(?P<agg>min|max|mean|count)\s+)?(?P<table>[\w-]+)\.(?P<column>\w+)"
-    r"\s*(?:\[(?P<where>[^\]]*)\])?\s*(?::(?P<fmt>[^}]+?))?\s*\}\}"
+    r"\s*(?:\[(?P<where>[^\]]*)\])?\s*(?::(?P<fmt>[^}|]+?))?\s*(?:\|(?P<empty>[^}]+?))?\s*\}\}"
 )
 
 
@@ -320,11 +320,11 @@ def fill_note(text: str, out: Path, name: str = "note") -> str:
     ``out/table.csv`` in ``column`` on the one row whose ``key`` columns hold those
     values (numbers compared to 1e-9 relative); ``{{max table.column[...]}}`` (or
     ``min``, ``mean``, ``count``) aggregates the rows that match. The format is
-    Python's (default ``.3g``). An empty cell is an error unless the placeholder says
-    what to write instead after a bar, ``{{table.column[...]:.2f|not reached}}``
-    (a rest time that a run did not reach). A placeholder that names no table, no
-    column, no row or several rows is an error naming it: a note cannot say a number
-    its table does not hold.
+    Python's (default ``.3g``). An empty cell (for an aggregate: every cell that
+    matches empty) is an error unless the placeholder ends with what to write instead,
+    after a bar: ``{{table.column[...]:.2f|not reached}}`` (a rest time that a run did
+    not reach). A placeholder that names no table, no column, no row or several rows
+    is an error naming it: a note cannot say a number its table does not hold.
     """
     tables: dict[str, pd.DataFrame] = {}
 
@@ -356,12 +356,11 @@ def fill_note(text: str, out: Path, name: str = "note") -> str:
             raise CocdError(f"{where}: {len(cells)} rows match, not one")
         else:
             cell = cells.iloc[0]
-        fmt, bar, empty = (match.group("fmt") or "").partition("|")
         if pd.isna(cell):
-            if not bar:
+            if match.group("empty") is None:
                 raise CocdError(f"{where}: the cell is empty")
-            return empty
-        fmt = fmt or (".3g" if isinstance(cell, float) else "")
+            return match.group("empty").strip()
+        fmt = match.group("fmt") or (".3g" if isinstance(cell, float) else "")
         try:
             return format(cell, fmt)
         except (TypeError, ValueError):

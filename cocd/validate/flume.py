@@ -405,10 +405,10 @@ def _front_figure(
     path: Path, trace: pd.DataFrame, table: pd.DataFrame, rest_speed: float, cfg: Settings
 ) -> Path:
     """The front from the gate against time, per slope and packing (seed 001's Fig. 9a),
-    each run's settling time marked; in the middle, the flow's largest speed against
-    seed 001's 0.01 m/s; below, the speeds that all of the flow's grains stay under but
-    0.1 % and 1 % of the pile's count, from which the rest times robust to rattlers are
-    read."""
+    marked where it settled (``t_front_s``); in the middle, the flow's largest speed
+    against the rest speed (seed 001's 0.01 m/s by default); below, the speeds that all
+    of the flow's grains stay under but 0.1 % and 1 % of the pile's count, from which
+    the rest times robust to rattlers are read."""
     plt = base.pyplot()
     fig, (top, middle, bottom) = plt.subplots(3, 1, figsize=(8, 9.5), sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
