@@ -124,6 +124,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
             "case": ["a", "b", "b"],
             "error": [0.5, 0.25, 0.125],
             "rest_s": [1.5, None, 2.0],
+            "steps": [220, 220, 220],
+            "dt": [0.01, 0.01, 0.01 * (1 + 1e-12)],
         }
     )
     write_table(tmp_path, "demo", table, title="Demo")
@@ -135,7 +137,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         "case b ranges to {{max demo.error[case=b]}} over {{count demo.error[case=b]}} rows. "
         "At rest from {{demo.rest_s[t=0.1]:.2f|never}} s and "
         "{{demo.rest_s[t=0.2]:.2f|not by the end}}; {{demo.rest_s[t=0.3]|none}} s, "
-        "{{max demo.rest_s[t=0.2] | never}}."
+        "{{max demo.rest_s[t=0.2] | never}}. Each of {{count demo.steps}} runs made "
+        "{{same demo.steps}} steps of {{same demo.dt}} s; the cases {{same demo.case[t=0.3]}}."
     )
     result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
@@ -144,6 +147,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     # An empty cell is written as the placeholder says, after its bar; a full one as
     # its format says (the default when none is given before the bar).
     assert "At rest from 1.50 s and not by the end; 2 s, never." in text
+    # `same` is the value every row that matches holds (numbers as rows are matched).
+    assert "Each of 3 runs made 220 steps of 0.01 s; the cases b." in text
     # Each way of naming what the table does not hold is refused, naming the placeholder.
     for bad, why in (
         ("{{demo.error[t=0.4]}}", "0 rows match, not one"),
@@ -154,6 +159,10 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         ("{{max demo.error[case=c]}}", "no row matches"),
         ("{{demo.rest_s[t=0.2]:.2f}}", "the cell is empty"),
         ("{{demo.rest_s[t=0.2]|}}", "not a placeholder cocd can read"),
+        ("{{same demo.error}}", "the rows that match differ (0.5, 0.25, 0.125)"),
+        ("{{same demo.case}}", "the rows that match differ (a, b)"),
+        ("{{same demo.rest_s[case=b]}}", "the rows that match differ"),
+        ("{{same demo.steps[case=c]}}", "no row matches"),
         ("{{demo.error[t=0.1]:}}", "not a placeholder cocd can read"),
     ):
         (notes / "demo.md").write_text(f"A number: {bad}.")

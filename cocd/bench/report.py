@@ -308,7 +308,7 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
 
 
 _PLACEHOLDER = re.compile(
-    r"\{\{\s*(?:(?P<agg>min|max|mean|count)\s+)?(?P<table>[\w-]+)\.(?P<column>\w+)"
+    r"\{\{\s*(?:(?P<agg>min|max|mean|count|same)\s+)?(?P<table>[\w-]+)\.(?P<column>\w+)"
     r"\s*(?:\[(?P<where>[^\]]*)\])?\s*(?::(?P<fmt>[^}|]+?))?\s*(?:\|(?P<empty>[^}]+?))?\s*\}\}"
 )
 
@@ -319,7 +319,9 @@ def fill_note(text: str, out: Path, name: str = "note") -> str:
     A placeholder ``{{table.column[key=value, ...]:format}}`` is the cell of
     ``out/table.csv`` in ``column`` on the one row whose ``key`` columns hold those
     values (numbers compared to 1e-9 relative); ``{{max table.column[...]}}`` (or
-    ``min``, ``mean``, ``count``) aggregates the rows that match. The format is
+    ``min``, ``mean``, ``count``) aggregates the rows that match, and
+    ``{{same table.column[...]}}`` is the value they all hold (an error if they
+    differ: "each run made 220 steps" is then checked on every run). The format is
     Python's (default ``.3g``). An empty cell (for an aggregate: every cell that
     matches empty) is an error unless the placeholder ends with what to write instead,
     after a bar: ``{{table.column[...]:.2f|not reached}}`` (a rest time that a run did
@@ -350,8 +352,11 @@ def fill_note(text: str, out: Path, name: str = "note") -> str:
         agg = match.group("agg")
         if agg and agg != "count" and not len(cells):
             raise CocdError(f"{where}: no row matches")
-        if agg:
-            cell: Any = len(cells) if agg == "count" else getattr(cells, agg)()
+        cell: Any
+        if agg == "same":
+            cell = _same(cells, where)
+        elif agg:
+            cell = len(cells) if agg == "count" else getattr(cells, agg)()
         elif len(cells) != 1:
             raise CocdError(f"{where}: {len(cells)} rows match, not one")
         else:
@@ -371,6 +376,20 @@ def fill_note(text: str, out: Path, name: str = "note") -> str:
     if left:
         raise CocdError(f"{name}: {left.group(0)} is not a placeholder cocd can read")
     return filled
+
+
+def _same(cells: pd.Series, where: str) -> Any:
+    """The value every cell holds (numbers to 1e-9 relative, as rows are matched);
+    an error naming a few of them when they differ."""
+    numbers = pd.to_numeric(cells, errors="coerce")
+    if numbers.notna().all():
+        low, high = float(numbers.min()), float(numbers.max())
+        if high - low <= 1e-9 * max(abs(low), abs(high), 1e-300):
+            return cells.iloc[0]
+    elif len({str(v) for v in cells}) == 1:  # text, or every cell empty
+        return cells.iloc[0]
+    shown = ", ".join(str(v) for v in cells.drop_duplicates().iloc[:4])
+    raise CocdError(f"{where}: the rows that match differ ({shown})")
 
 
 def _matches(column: pd.Series, want: str) -> pd.Series:
