@@ -987,6 +987,9 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["flume", "--slopes", "0,95"], "slopes must be in [0, 90)"),
         (["flume", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
         (["flume", "--until", "0.015"], "is not a whole number of steps"),
+        (["flume", "--diameter", "-0.004"], "diameter must be a positive number, got -0.004"),
+        (["flume", "--rest-speed", "0"], "rest_speed must be a positive number, got 0"),
+        (["runout", "--dt", "nan"], "dt must be a positive number, got nan"),
     ):
         result = runner.invoke(app, ["validate", *args, *out])
         assert result.exit_code == 2, (args, result.output)

@@ -878,8 +878,15 @@ def twin_tolerance(name: str, value: float, tol: float, tol_name: str = "tol") -
 
 
 def positive_list(name: str, values: Sequence[float]) -> list[float]:
+    """``values`` as floats, each finite and positive: one setting's list, or several
+    settings given one value each (``name`` then names them, comma-separated, and
+    the error names the first that is wrong)."""
     out = [float(v) for v in values]
-    if not out or any(not (math.isfinite(v) and v > 0.0) for v in out):
+    names = [part.strip() for part in name.split(",")]
+    bad = [k for k, v in enumerate(out) if not (math.isfinite(v) and v > 0.0)]
+    if bad and len(names) > 1 and len(names) == len(out):
+        raise CocdError(f"{names[bad[0]]} must be a positive number, got {out[bad[0]]:g}")
+    if not out or bad:
         raise CocdError(f"{name} must be positive numbers, got {list(values)!r}")
     return out
 
