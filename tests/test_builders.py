@@ -249,6 +249,10 @@ def test_deterministic_for_a_seed():
         (dict(n_grains=10, mu=-1.0), "mu"),
         (dict(n_grains=10, mu_side=0.2), "mu_side"),
         (dict(n_grains=10, dim=3, mu_side=-0.1), "mu_side"),
+        # A side smaller than the grains the column is built of, at their diameter.
+        (dict(diameter=0.004, dim=3, length=0.001), "length 0.001 m is less than a grain"),
+        (dict(diameter=0.004, height=0.003), "height 0.003 m is less than a grain"),
+        (dict(diameter=0.004, dim=3, width=0.002), "width 0.002 m is less than a grain"),
     ],
 )
 def test_bad_arguments_name_themselves(kwargs, name):

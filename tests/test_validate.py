@@ -969,6 +969,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
         (["runout", "--aspects", "1,2,3,4"], "at least 6 distinct aspect ratios"),
         (["runout", "--aspects", "1,1,1,1,1,1"], "at least 6 distinct aspect ratios"),
+        (["runout3d", "--aspects", "1,2,3,4,5,1e5"], "aspect ratio 100000 gives a column 0.000316 m long"),
+        (["runout", "--aspects", "1e-5,1,2,3,4,5"], "m high, less than 2 diameters"),
         (["runout3d", "--side-mus", "0,-0.1"], "side_mus must be numbers >= 0"),
         (["runout3d", "--width-d", "1"], "width_d must be at least 2 diameters"),
         (["dims", "--slopes", "0,95"], "slopes must be in [0, 90)"),
@@ -988,6 +990,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["flume", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
         (["flume", "--until", "0.015"], "is not a whole number of steps"),
         (["flume", "--diameter", "-0.004"], "diameter must be a positive number, got -0.004"),
+        (["flume", "--length", "0.001"], "length 0.001 m is less than a grain"),
         (["flume", "--rest-speed", "0"], "rest_speed must be a positive number, got 0"),
         (["runout", "--dt", "nan"], "dt must be a positive number, got nan"),
     ):

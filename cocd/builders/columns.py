@@ -296,6 +296,12 @@ def column_collapse(
         n, d_mean = lattice_size(dim, n_grains, diameter, volume, poly)
     else:
         n, d_mean = rain_size(dim, n_grains, diameter, volume, poly)
+    sides = {"length": length, "height": height, **({"width": chan} if dim == 3 else {})}
+    for what, size in sides.items():
+        if size < d_mean:
+            raise SceneError(
+                f"{what} {size:g} m is less than a grain of the column ({d_mean:.3g} m)"
+            )
     rng = np.random.default_rng(seed)
     radii = uniform_radii(n, d_mean, poly, rng)
     r_max = float(radii.max())

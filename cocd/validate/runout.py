@@ -126,6 +126,14 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "area, diameter, dt, rest_T, min_time",
         [cfg.area, cfg.diameter, cfg.dt, cfg.rest_T, cfg.min_time],
     )
+    for a in aspects:  # a column narrower or lower than 2 grains is no column
+        short = min(math.sqrt(area / a), math.sqrt(area * a))
+        if short < 2.0 * diameter:
+            raise CocdError(
+                f"aspect ratio {a:g} gives a column {short:.3g} m "
+                f"{'long' if a > 1 else 'high'}, less than 2 diameters of {diameter:g} m; "
+                "use a smaller diameter or a larger area"
+            )
     channels: list[float | None] = [None]
     width_d = math.nan
     if isinstance(cfg, Settings3D):
