@@ -126,6 +126,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
             "rest_s": [1.5, None, 2.0],
             "steps": [220, 220, 220],
             "dt": [0.01, 0.01, 0.01 * (1 + 1e-12)],
+            "bound": [float("inf")] * 3,
         }
     )
     write_table(tmp_path, "demo", table, title="Demo")
@@ -138,7 +139,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         "At rest from {{demo.rest_s[t=0.1]:.2f|never}} s and "
         "{{demo.rest_s[t=0.2]:.2f|not by the end}}; {{demo.rest_s[t=0.3]|none}} s, "
         "{{max demo.rest_s[t=0.2] | never}}. Each of {{count demo.steps}} runs made "
-        "{{same demo.steps}} steps of {{same demo.dt}} s; the cases {{same demo.case[t=0.3]}}."
+        "{{same demo.steps}} steps of {{same demo.dt}} s; the cases {{same demo.case[t=0.3]}}; "
+        "no bound ({{same demo.bound}})."
     )
     result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
@@ -148,7 +150,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     # its format says (the default when none is given before the bar).
     assert "At rest from 1.50 s and not by the end; 2 s, never." in text
     # `same` is the value every row that matches holds (numbers as rows are matched).
-    assert "Each of 3 runs made 220 steps of 0.01 s; the cases b." in text
+    assert "Each of 3 runs made 220 steps of 0.01 s; the cases b; no bound (inf)." in text
     # Each way of naming what the table does not hold is refused, naming the placeholder.
     for bad, why in (
         ("{{demo.error[t=0.4]}}", "0 rows match, not one"),

@@ -384,7 +384,7 @@ def _same(cells: pd.Series, where: str) -> Any:
     numbers = pd.to_numeric(cells, errors="coerce")
     if numbers.notna().all():
         low, high = float(numbers.min()), float(numbers.max())
-        if high - low <= 1e-9 * max(abs(low), abs(high), 1e-300):
+        if low == high or high - low <= 1e-9 * max(abs(low), abs(high), 1e-300):
             return cells.iloc[0]
     elif len({str(v) for v in cells}) == 1:  # text, or every cell empty
         return cells.iloc[0]

@@ -126,7 +126,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "area, diameter, dt, rest_T, min_time",
         [cfg.area, cfg.diameter, cfg.dt, cfg.rest_T, cfg.min_time],
     )
-    for a in aspects:  # a column narrower or lower than 2 grains is no column
+    for a in aspects:  # a column shorter or lower than 2 diameters is no column
         short = min(math.sqrt(area / a), math.sqrt(area * a))
         if short < 2.0 * diameter:
             raise CocdError(
