@@ -383,8 +383,7 @@ def _same(cells: pd.Series, where: str) -> Any:
     an error naming a few of them when they differ."""
     numbers = pd.to_numeric(cells, errors="coerce")
     if numbers.notna().all():
-        low, high = float(numbers.min()), float(numbers.max())
-        if low == high or high - low <= 1e-9 * max(abs(low), abs(high), 1e-300):
+        if _close(float(numbers.min()), float(numbers.max())):
             return cells.iloc[0]
     elif len({str(v) for v in cells}) == 1:  # text, or every cell empty
         return cells.iloc[0]
@@ -398,7 +397,13 @@ def _matches(column: pd.Series, want: str) -> pd.Series:
     except ValueError:
         return column.astype(str) == want
     values = pd.to_numeric(column, errors="coerce")
-    return (values - number).abs() <= 1e-9 * max(abs(number), 1e-300)
+    return values.map(lambda v: _close(v, number)).astype(bool)
+
+
+def _close(a: float, b: float) -> bool:
+    """Equal to 1e-9 relative, as a note's numbers and conditions are compared
+    (infinities equal only to themselves, NaN to nothing)."""
+    return a == b or abs(a - b) <= 1e-9 * max(abs(a), abs(b), 1e-300)
 
 
 def throttled(

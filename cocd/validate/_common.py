@@ -878,17 +878,21 @@ def twin_tolerance(name: str, value: float, tol: float, tol_name: str = "tol") -
 
 
 def positive_list(name: str, values: Sequence[float]) -> list[float]:
-    """``values`` as floats, each finite and positive: one setting's list, or several
-    settings given one value each (``name`` then names them, comma-separated, and
-    the error names the first that is wrong)."""
+    """One setting's list of values as floats, each finite and positive."""
     out = [float(v) for v in values]
-    names = [part.strip() for part in name.split(",")]
-    bad = [k for k, v in enumerate(out) if not (math.isfinite(v) and v > 0.0)]
-    if bad and len(names) > 1 and len(names) == len(out):
-        raise CocdError(f"{names[bad[0]]} must be a positive number, got {out[bad[0]]:g}")
-    if not out or bad:
+    if not out or not all(math.isfinite(v) and v > 0.0 for v in out):
         raise CocdError(f"{name} must be positive numbers, got {list(values)!r}")
     return out
+
+
+def positives(**settings: float) -> list[float]:
+    """Several settings of one value each, as floats in the order given; the error
+    names the first that is not a finite positive number."""
+    for name, value in settings.items():
+        v = float(value)
+        if not (math.isfinite(v) and v > 0.0):
+            raise CocdError(f"{name} must be a positive number, got {v:g}")
+    return [float(v) for v in settings.values()]
 
 
 def pyplot() -> Any:

@@ -190,16 +190,16 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
 
     mus = sorted(set(base.positive_list("mus", cfg.mus)))
     n = base.positive_int("n", cfg.n, 10)
-    width_d, diameter, step_deg, hold, dt, v_flow = base.positive_list(
-        "width_d, diameter, step_deg, hold, dt, v_flow",
-        [cfg.width_d, cfg.diameter, cfg.step_deg, cfg.hold, cfg.dt, cfg.v_flow],
-    )
+    width_d, diameter, step_deg, hold, dt, v_flow = base.positives(
+        width_d=cfg.width_d, diameter=cfg.diameter, step_deg=cfg.step_deg, hold=cfg.hold,
+        dt=cfg.dt, v_flow=cfg.v_flow,
+    )  # fmt: skip
     if not (math.isfinite(cfg.target_deg) and 0.0 < cfg.target_deg < 90.0):
         raise CocdError(f"target_deg must be between 0 and 90 degrees, got {cfg.target_deg!r}")
     along = "width_d"
     length_d = width_d
     if isinstance(cfg, Settings3D):
-        along, length_d = "length_d", base.positive_list("length_d", [cfg.length_d])[0]
+        along, length_d = "length_d", base.positives(length_d=cfg.length_d)[0]
     if length_d < MIN_WIDTH_D:
         raise CocdError(
             f"{along} must be at least {MIN_WIDTH_D:g} diameters (the surface is fitted 3 "

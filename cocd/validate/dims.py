@@ -88,8 +88,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     their ratio.
     """
     sizes = _sizes(cfg.n2d, cfg.n3d)
-    width, dt2d, dt3d, bed = base.positive_list(
-        "width, dt2d, dt3d, bed_length", [cfg.width, cfg.dt2d, cfg.dt3d, cfg.bed_length]
+    width, dt2d, dt3d, bed = base.positives(
+        width=cfg.width, dt2d=cfg.dt2d, dt3d=cfg.dt3d, bed_length=cfg.bed_length
     )
     if bed <= LENGTH:
         raise CocdError(f"bed_length must exceed the column's length {LENGTH:g} m, got {bed:g}")

@@ -59,9 +59,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if not layers or any(not (math.isfinite(h) and h >= 0.0) for h in layers):
         raise CocdError(f"layer thicknesses must be >= 0 diameters, got {layers!r}")
     layers = sorted(set(layers))
-    (until, dt, bed_length) = base.positive_list(
-        "until, dt, bed_length", [cfg.until, cfg.dt, cfg.bed_length]
-    )
+    (until, dt, bed_length) = base.positives(until=cfg.until, dt=cfg.dt, bed_length=cfg.bed_length)
     out = Path(out)
     from cocd.builders import column_collapse
 

@@ -54,6 +54,8 @@ FAR_BINS = 5
 #: speed but at most this share of the pile's grain count (0.1 % and, for the criterion's
 #: sensitivity, 1 %); the grains counted are the flow's, the bed under it included.
 FEW = {"permil": 1e-3, "pct": 1e-2}
+#: The figure's line style for each share of ``FEW``, in its order, and its word in the title.
+FEW_STYLES = (("-", "solid"), ("--", "dashed"))
 
 
 @dataclass(frozen=True)
@@ -97,10 +99,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     slopes = sorted({float(s) for s in cfg.slopes})
     if not slopes or any(not (0.0 <= s < 90.0) for s in slopes):
         raise CocdError(f"slopes must be in [0, 90) degrees, got {list(cfg.slopes)!r}")
-    d, L0, H0, W, layer, bed, dt, until, rest_speed, threshold = base.positive_list(
-        "diameter, length, height, width, layer, bed_length, dt, until, rest_speed, threshold",
-        [cfg.diameter, cfg.length, cfg.height, cfg.width, cfg.layer, cfg.bed_length, cfg.dt,
-         cfg.until, cfg.rest_speed, cfg.threshold],
+    d, L0, H0, W, layer, bed, dt, until, rest_speed, threshold = base.positives(
+        diameter=cfg.diameter, length=cfg.length, height=cfg.height, width=cfg.width,
+        layer=cfg.layer, bed_length=cfg.bed_length, dt=cfg.dt, until=cfg.until,
+        rest_speed=cfg.rest_speed, threshold=cfg.threshold,
     )  # fmt: skip
     if W < 2.0 * d:
         raise CocdError(f"width must be at least 2 diameters ({2.0 * d:g} m), got {W:g}")
@@ -419,7 +421,7 @@ def _front_figure(
             label = f"{slope:g} deg" if seed == min(trace.seed) else None
             top.plot(run.t, run.front_m, color=colour, lw=1.2, label=label)
             middle.semilogy(run.t, run.speed_max_flow, color=colour, lw=0.8)
-            for name, style in zip(FEW, ("-", "--"), strict=False):
+            for name, (style, _) in zip(FEW, FEW_STYLES, strict=True):
                 speed = run[f"speed_{name}_flow"].to_numpy(dtype=float)
                 bottom.semilogy(
                     run.t, np.where(speed > 0, speed, np.nan), style, color=colour, lw=0.8
@@ -443,8 +445,11 @@ def _front_figure(
     bottom.set_ylabel("speed of the flow but a few (m/s)")
     bottom.set_title(
         "the speed all grains of the flow stay under but "
-        + " (solid) and ".join(f"{share * 100:g} %" for share in FEW.values())
-        + f" (dashed) of the pile's {pile} grains",
+        + " and ".join(
+            f"{share * 100:g} % ({word})"
+            for share, (_, word) in zip(FEW.values(), FEW_STYLES, strict=True)
+        )
+        + f" of the pile's {pile} grains",
         fontsize=9,
     )
     bottom.set_xlabel("t (s)")

@@ -75,7 +75,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     from cocd.builders import G
 
     n = base.positive_int("n", cfg.n)
-    (dt,) = base.positive_list("dt", [cfg.dt])
+    (dt,) = base.positives(dt=cfg.dt)
     times_T = sorted(base.positive_list("times_T", cfg.times_T))
     out = Path(out)
     params = base.base_params(n, cfg.mu)

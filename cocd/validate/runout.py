@@ -122,10 +122,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if len(aspects) < 6:
         raise CocdError("scaling needs at least 6 distinct aspect ratios (three per regime)")
     seeds = base.positive_int("seeds", cfg.seeds)
-    area, diameter, dt, rest_T, min_time = base.positive_list(
-        "area, diameter, dt, rest_T, min_time",
-        [cfg.area, cfg.diameter, cfg.dt, cfg.rest_T, cfg.min_time],
-    )
+    area, diameter, dt, rest_T, min_time = base.positives(
+        area=cfg.area, diameter=cfg.diameter, dt=cfg.dt, rest_T=cfg.rest_T,
+        min_time=cfg.min_time,
+    )  # fmt: skip
     for a in aspects:  # a column shorter or lower than 2 diameters is no column
         short = min(math.sqrt(area / a), math.sqrt(area * a))
         if short < 2.0 * diameter:
@@ -137,7 +137,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     channels: list[float | None] = [None]
     width_d = math.nan
     if isinstance(cfg, Settings3D):
-        width_d = base.positive_list("width_d", [cfg.width_d])[0]
+        width_d = base.positives(width_d=cfg.width_d)[0]
         if width_d < 2.0:
             raise CocdError(f"width_d must be at least 2 diameters, got {width_d:g}")
         if not cfg.side_mus or any(not (math.isfinite(m) and m >= 0.0) for m in cfg.side_mus):
