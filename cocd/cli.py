@@ -20,11 +20,12 @@ from rich.table import Table
 import solvers
 from cocd.bench.cli import bench_app, validate_app
 from cocd.errors import CocdError
-from cocd.exits import EXIT_INTERRUPTED, EXIT_NOT_SOLVED, fail
-from cocd.outputs import check_run_folder, writable_file
+from cocd.exits import EXIT_INTERRUPTED, EXIT_NOT_SOLVED, OneLineErrors, fail
+from cocd.outputs import check_run_folder, writable_file, writable_folder
 from cocd.problem_cli import problem_app
 
 app = typer.Typer(
+    cls=OneLineErrors,
     rich_markup_mode=None,
     add_completion=False,
     no_args_is_help=False,
@@ -334,6 +335,7 @@ def export_vtu_command(
 
     folder = out if out is not None else run_file.parent / "vtu"
     try:
+        writable_folder(folder, "--out")
         paths = export_vtu(run_file, folder, every=every)
     except CocdError as exc:
         fail(exc)
@@ -393,7 +395,7 @@ def plot_command(
     try:
         if out is not None:
             writable_file(out, "--out")
-        path = plot_run(run_file, kind, out, frame=frame)
+        path = plot_run(run_file, kind, out, frame=frame)  # says the path it wrote
     except CocdError as exc:
         fail(exc)
         return
@@ -416,7 +418,9 @@ def show_command(
 
     try:
         config = load_config(scene)
-        target = out if out is not None else Path("cocd-runs") / scene.stem / "scene.png"
+        from cocd.plots import figure_path
+
+        target = figure_path(out if out is not None else Path("cocd-runs") / scene.stem / "scene")
         writable_file(target, "--out")
         built = build_scene(config, str(scene))
         stepper = config.stepper(built)

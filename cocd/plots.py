@@ -62,6 +62,8 @@ def plot_run(
     target = Path(out) if out is not None else run_path.with_name(f"{kind}{suffix}")
     if kind == "movie" and target.suffix.lower() not in (".gif", ".mp4"):
         raise CocdError(f"a movie is written as .gif or .mp4, not {target.name!r}")
+    if kind != "movie":
+        target = figure_path(target)
     with RunFile(run_path) as rf:
         if kind == "movie":
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -99,6 +101,24 @@ def _snapshot(rf: RunFile, plt: Any, k: int) -> tuple[Any, Any]:
     draw_snapshot(ax, scene, fr.velocities, (fr.i, fr.j, fr.impulse[:, 0]), dt=_dt(rf))
     ax.set_title(f"{_title(rf)}\nt = {fr.time:.4g} s (step {fr.step})", fontsize=9)
     return fig, ax
+
+
+def figure_path(path: str | os.PathLike[str]) -> Path:
+    """``path`` as the file a figure is saved to: ``.png`` added when it has no suffix
+    (as matplotlib would, so the path said is the path written); a suffix matplotlib
+    cannot write is refused, naming those it can."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    path = Path(path)
+    if not path.suffix:
+        return path.with_name(path.name + ".png")
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    if path.suffix[1:].lower() not in kinds:
+        raise CocdError(
+            f"a figure cannot be written as {path.suffix!r} ({path}); "
+            f"use one of {', '.join('.' + k for k in sorted(kinds))}"
+        )
+    return path
 
 
 def plot_scene(scene: Any, path: Path | str, *, title: str = "") -> Path:

@@ -82,6 +82,12 @@ def problem_solve(
 
     try:
         if save_solution is not None:
+            if save_solution.is_dir():
+                raise CocdError(f"--save-solution {save_solution} is a folder, not a file")
+            if not save_solution.suffix:  # the path said is the path written
+                save_solution = save_solution.with_name(save_solution.name + ".npz")
+            if save_solution.suffix != ".npz":
+                raise CocdError(f"--save-solution writes .npz, not {save_solution.name!r}")
             writable_file(save_solution, "--save-solution")
         problem = read_problem(file)
         record, answer = solve_external(problem, solver, tol, time_limit=time_limit)

@@ -91,21 +91,23 @@ def run(
     """Advance the configured scene to its end, writing ``out/run.h5``.
 
     An existing run file in ``out`` is never replaced unless ``force`` is
-    given: then it goes, with the files cocd derived from it
+    given, or it holds no step (a run that failed before its first, e.g. on a
+    backend's bad option): then it goes, with the files cocd derived from it
     (:data:`DERIVED_FILES`). With ``resume`` the run continues from the file's
     last complete frame; the file's configuration must be the same as
     ``config`` except ``until``/``steps`` (a finished run resumed with a later
-    ``until`` goes on). With ``resume`` and no run file in ``out``, the run
-    starts afresh. ``scene``: the scene the configuration builds, if already
-    built (it is advanced in place).
+    ``until`` goes on). With ``resume`` and no run file in ``out`` (or one
+    without a step), the run starts afresh. ``scene``: the scene the
+    configuration builds, if already built (it is advanced in place).
     """
     path = Path(out) / RUN_FILE
     resolved = config.resolved()
     rc = config.run
     if resume and force:
         raise RunFileError("give resume or force, not both")
-    if path.exists() and not resume:
-        if not force:
+    empty = path.exists() and holds_no_step(path)  # nothing in it to lose
+    if path.exists() and (empty or not resume):
+        if not (force or empty):
             raise RunFileError(
                 f"{Path(out)} already holds a run ({existing_run(path)}): "
                 "--resume continues it, --force replaces it"
@@ -185,6 +187,8 @@ def export_step(
             )
         target = Path(run_path).parent / f"step_{k:06d}.hdf5" if out is None else Path(out)
         writable_file(target, "--out")
+        if target.exists() and target.resolve() == Path(run_path).resolve():
+            raise CocdError(f"--out {target} is the run file itself: give another file")
         if target.exists() and not force:
             raise CocdError(f"{target} exists: --force replaces it")
         config = parse_config(
@@ -209,6 +213,16 @@ def _state_at(
     held = rf.frame(frame)
     previous = (held.keys, held.impulse[:, : rf.contact_dim]) if held.step > 0 else None
     return rf.scene(frame), records[: held.step], previous, held.step
+
+
+def holds_no_step(path: Path) -> bool:
+    """Whether ``path`` is a readable run file without a step: a run that stopped before
+    its first (a backend's bad option, say) holds nothing a new run would lose."""
+    try:
+        with RunFile(path) as rf:
+            return len(rf.records()) == 0
+    except (RunFileError, OSError, KeyError, AttributeError):
+        return False
 
 
 def existing_run(path: Path) -> str:

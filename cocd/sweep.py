@@ -43,6 +43,7 @@ import hashlib
 import itertools
 import json
 import os
+import re
 import time
 import uuid
 from collections.abc import Callable
@@ -95,6 +96,13 @@ class SweepSpec(BaseModel):
     scenes: dict[str, SceneEntry]
     grid: dict[str, list[Any]]
 
+    @field_validator("name")
+    @classmethod
+    def _plain(cls, name: str) -> str:  # the tables are written as <out>/<name>.csv
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name):
+            raise ValueError(f"must be a plain file name (letters, digits, . _ -), not {name!r}")
+        return name
+
     @field_validator("grid")
     @classmethod
     def _axes(cls, grid: dict[str, list[Any]]) -> dict[str, list[Any]]:
@@ -103,6 +111,10 @@ class SweepSpec(BaseModel):
                 raise ValueError(f"unknown axis {key!r}; use {', '.join(AXES)} or params.<name>")
             if not values:
                 raise ValueError(f"axis {key!r} has no values")
+            seen = [json.dumps(v, sort_keys=True, default=str) for v in values]
+            again = next((v for k, v in enumerate(values) if seen[k] in seen[:k]), None)
+            if again is not None:
+                raise ValueError(f"axis {key!r} repeats {again!r}: its cells would run twice")
         if "scene" not in grid:
             raise ValueError("the grid needs a 'scene' axis")
         return grid
@@ -309,7 +321,7 @@ def _submit_all(
             if scheduler is not None:
                 try:
                     own_client = client = Client(scheduler, timeout="20s")
-                except (OSError, TimeoutError) as exc:
+                except (OSError, TimeoutError, ValueError) as exc:
                     raise CocdError(
                         f"cannot reach the Dask scheduler {scheduler!r}: {exc}"
                     ) from None

@@ -157,6 +157,7 @@ def test_ctrl_c_in_a_terminal_says_where_and_how_to_resume(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "cocd", "run", "--steps", "5000", "--frame-every", "2"]
     cmd += ["--out", str(out)]
+
     # A shell that runs the tests in the background may ignore SIGINT, and a library
     # may have left it blocked in this process: children inherit both. The command
     # gets the default handling, and the signal mask, a terminal user has.
@@ -323,3 +324,120 @@ def test_provenance_is_modified_by_code_changes_not_by_results_written(tmp_path)
     copy.write_text(copy.read_text() + "\n# changed\n")
     module.provenance.cache_clear()
     assert module.provenance()["dirty"] is True
+
+
+def test_files_a_run_writes_are_not_taken_from_a_folder_without_a_run(tmp_path):
+    """Someone's stats.csv in the output folder is not replaced unless --force; a run.h5
+    that is a folder is named; a run that failed before its first step holds nothing
+    and is replaced by the next plain run."""
+    out = tmp_path / "theirs"
+    out.mkdir()
+    (out / "stats.csv").write_text("mine")
+    result = _run("--steps", "2", "--out", str(out))
+    assert result.exit_code == 2
+    assert result.output.strip() == (
+        f"error: {out} holds stats.csv but no run file: a run would replace it; "
+        "--force does, or give another --out"
+    )
+    assert (out / "stats.csv").read_text() == "mine" and not (out / "run.h5").exists()
+    assert _run("--steps", "2", "--out", str(out), "--force").exit_code == 0
+    assert len(pd.read_csv(out / "stats.csv")) == 2
+
+    (tmp_path / "odd" / "run.h5").mkdir(parents=True)
+    result = _run("--steps", "2", "--out", str(tmp_path / "odd"), "--force")
+    assert result.exit_code == 2
+    assert (
+        result.output.strip()
+        == f"error: --out {tmp_path / 'odd'}: run.h5 there is a folder, not a run file"
+    )
+
+    failed = tmp_path / "failed"
+    result = _run("--steps", "2", "--out", str(failed), "--solver", "clarabel:no_such=1")
+    assert result.exit_code == 2 and "no_such" in result.output
+    with RunFile(failed / "run.h5") as rf:
+        assert len(rf.stats()) == 0
+    assert _run("--steps", "2", "--out", str(failed)).exit_code == 0
+    assert _steps(failed) == 2
+
+
+def test_file_system_refusals_are_one_line_errors(tmp_path):
+    """A file where a folder is needed, or a folder where a file is, anywhere under any
+    command, ends in one line and exit 2, not a traceback; the input run is never the
+    output."""
+    out = tmp_path / "r"
+    assert _run("--steps", "2", "--out", str(out)).exit_code == 0
+    run_file = str(out / "run.h5")
+    (tmp_path / "afile").write_text("x")
+    for args, message in (
+        (["export", "vtu", run_file, "--out", str(tmp_path / "afile")], "a file is in the way"),
+        (["plot", str(out), "energy"], f"{out} is a folder, not a run file"),
+        (["export", "fclib", run_file, "--out", run_file, "--force"], "is the run file itself"),
+        (["plot", run_file, "energy", "--out", str(tmp_path / "p.txt")], "cannot be written as '.txt'"),
+        (["bench", "readme", "--out", str(tmp_path / "afile")], "is a file"),
+    ):  # fmt: skip
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert len(result.output.strip().splitlines()) == 1, (args, result.output)
+        assert message in result.output, (args, result.output)
+    assert _steps(out) == 2  # the run file is still the run
+    # Without a suffix a figure is a PNG, and the path said is the path written.
+    result = runner.invoke(app, ["plot", run_file, "energy", "--out", str(tmp_path / "e")])
+    assert result.exit_code == 0 and result.output.strip() == f"wrote {tmp_path / 'e.png'}"
+    assert (tmp_path / "e.png").exists()
+
+
+def test_an_error_from_the_system_anywhere_is_one_line(tmp_path, monkeypatch):
+    """The root command turns an OSError no command foresaw into its one line."""
+    import errno
+
+    import cocd.plots
+
+    def refused(*args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path / "x.png"))
+
+    out = tmp_path / "r"
+    assert _run("--steps", "1", "--out", str(out)).exit_code == 0
+    monkeypatch.setattr(cocd.plots, "plot_run", refused)
+    result = runner.invoke(app, ["plot", str(out / "run.h5"), "energy"])
+    assert result.exit_code == 2
+    assert result.output.strip() == f"error: Permission denied: '{tmp_path / 'x.png'}'"
+
+
+def test_a_readme_cocd_did_not_write_is_not_replaced(tmp_path):
+    """`cocd bench readme` and every study refuse, before any work, an --out whose
+    README.md is someone else's; one cocd wrote is rebuilt."""
+    from cocd.bench.report import README_MARK, write_readme
+
+    (tmp_path / "README.md").write_text("# Mine\n\nmy notes\n")
+    result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "was not written by cocd" in result.output
+    result = runner.invoke(app, ["bench", "hard", "--cases", "zero_gap", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "was not written by cocd" in result.output
+    assert (tmp_path / "README.md").read_text() == "# Mine\n\nmy notes\n"
+    assert not list(tmp_path.glob("*.csv"))
+    ours = tmp_path / "ours"
+    ours.mkdir()
+    write_readme(ours, heading="Ours")
+    assert README_MARK in (ours / "README.md").read_text()
+    assert runner.invoke(app, ["bench", "readme", "--out", str(ours)]).exit_code == 0
+
+
+def test_bad_study_options_are_refused_before_any_work(tmp_path):
+    """Tolerances, time limits and memory caps are positive; a share of the energy is
+    below 1; a list of names does not repeat one."""
+    for args in (
+        ["bench", "backends", "--tol", "0"],
+        ["bench", "iterative", "--time-limit", "nan"],
+        ["bench", "backends", "--memory-gb", "-1"],
+        ["validate", "nscd", "--nscd-tol", "0"],
+        ["validate", "nscd", "--nscd-max-iter", "0"],
+    ):
+        result = runner.invoke(app, [*args, "--out", str(tmp_path)])
+        assert result.exit_code == 2, (args, result.output)
+        assert "must be a positive number" in result.output, (args, result.output)
+        assert not list(tmp_path.glob("*.csv"))
+    result = runner.invoke(app, ["bench", "stability", "--threshold", "2", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "below 1" in result.output
+    args = ["bench", "hard", "--cases", "zero_gap,zero_gap", "--out", str(tmp_path)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "--cases repeats 'zero_gap'" in result.output

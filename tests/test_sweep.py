@@ -168,6 +168,10 @@ def test_interrupted_sweep_runs_only_the_missing_cells(tmp_path, client):
          "speed: unknown key"),  # fmt: skip
         ('steps = 1\n[scenes.a]\nbuilder = "stack"\nparams = { n_grains = 2 }\n[grid]\n'
          'scene = ["a"]\nsolver = ["clarabel", "nope"]\n', "cell .*'solver': 'nope'.*unknown solver 'nope'"),  # fmt: skip
+        ('name = "../../out"\nsteps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n',
+         "name: must be a plain file name"),  # fmt: skip
+        ('steps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n'
+         'tol = [1e-6, 1e-6]\n', "axis 'tol' repeats 1e-06: its cells would run twice"),  # fmt: skip
     ],
 )
 def test_bad_sweep_files_are_named(tmp_path, text, message):

@@ -236,11 +236,35 @@ def write_meta(
     return path
 
 
+#: Words every README that :func:`write_readme` writes holds: one without them is
+#: someone else's, and is not replaced.
+README_MARK = "this README is\nrebuilt from their `*.meta.json` by `cocd bench readme`"
+
+
+def check_readme_ours(out: Path) -> None:
+    """Refuse ``out`` when its ``README.md`` was not written by :func:`write_readme`."""
+    path = Path(out) / "README.md"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CocdError(f"cannot read {path}: {exc}") from None
+    if README_MARK not in text:
+        raise CocdError(
+            f"{path} was not written by cocd, and the results' README would replace it: "
+            "move it, or give another --out"
+        )
+
+
 def write_readme(out: Path, *, heading: str | None = None) -> Path:
     """Rebuild ``<out>/README.md`` from every ``<out>/*.meta.json``, under ``# heading``
     (default: the heading the README has, else "Results")."""
     if not out.is_dir():
-        raise CocdError(f"results directory {out} does not exist")
+        raise CocdError(
+            f"results directory {out} " + ("is a file" if out.exists() else "does not exist")
+        )
+    check_readme_ours(out)
     if heading is None:
         heading = "Results"
         try:

@@ -66,9 +66,15 @@ def option(
     kind: Kind | None = None,
     argument: bool = False,
     aliases: tuple[str, ...] = (),
+    positive: bool = False,
 ) -> Any:
-    """A settings field with what the command line needs to know of it."""
-    meta = {"help": help, "flag": flag, "kind": kind, "argument": argument, "aliases": aliases}
+    """A settings field with what the command line needs to know of it; ``positive``:
+    a number the command refuses, before any work, unless finite and > 0 (``None``,
+    where it is the default, stays allowed)."""
+    meta = {
+        "help": help, "flag": flag, "kind": kind, "argument": argument, "aliases": aliases,
+        "positive": positive,
+    }  # fmt: skip
     if isinstance(default, list | tuple):
         default = tuple(default)
     if default is dataclasses.MISSING:
@@ -83,7 +89,7 @@ def solvers(default: str | None = None, help: str = "") -> Any:
 
 def time_limit(default: float) -> Any:
     """The ``--time-limit`` option: seconds per solve."""
-    return option(default, "Seconds per solve before a backend is stopped.")
+    return option(default, "Seconds per solve before a backend is stopped.", positive=True)
 
 
 def problem_folder() -> Any:
@@ -104,7 +110,7 @@ def resume(table: str, help: str = "") -> Any:
 
 def memory_gb() -> Any:
     """The ``--memory-gb`` option: the memory cap of a backend's child process."""
-    return option(None, "Memory cap per backend process (GiB; default 3/4 of RAM).")
+    return option(None, "Memory cap per backend process (GiB; default 3/4 of RAM).", positive=True)
 
 
 @dataclass(frozen=True)
@@ -223,6 +229,9 @@ def parse_list(text: str, kind: Kind, what: str) -> tuple[Any, ...]:
     """Comma-separated values of ``kind``; a one-line error naming ``what`` otherwise."""
     words = [w.strip() for w in text.split(",") if w.strip()]
     if kind == "names":
+        again = next((w for k, w in enumerate(words) if w in words[:k]), None)
+        if again is not None:  # it would be run, and tabled, twice
+            raise CocdError(f"{what} repeats {again!r}")
         return tuple(words)
     if kind == "ints":
         try:
@@ -307,8 +316,15 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
                 kind = f.metadata.get("kind")
                 if kind is not None and value is not None:
                     value = parse_list(value, kind, _flag(f))
+                if f.metadata.get("positive") and value is not None:
+                    number = float(value)
+                    if not (math.isfinite(number) and number > 0):
+                        raise CocdError(f"{_flag(f)} must be a positive number, got {value!r}")
                 values[f.name] = value
             writable_folder(where, "--out")
+            from cocd.bench.report import check_readme_ours
+
+            check_readme_ours(where)  # before the work, not after it
             study.run(study.settings(**values), out=where)
             if study.readme(where, typer.echo) is not None:
                 typer.echo(f"wrote {where / 'README.md'}")

@@ -351,6 +351,8 @@ class RunFile:
         self.path = Path(path)
         if not self.path.exists():
             raise RunFileError(f"run file {self.path} does not exist")
+        if self.path.is_dir():
+            raise RunFileError(f"{self.path} is a folder, not a run file")
         try:
             # live: HDF5's SWMR reading, for a file a run is writing. It retries reads
             # that fail their checksums, which makes it slow on a damaged file, so it
@@ -363,8 +365,8 @@ class RunFile:
                     raise
                 self.f = h5py.File(self.path, "r", swmr=True)
         except OSError as exc:
-            hint = "" if live else "; if a run is writing it, read it with live=True"
-            raise RunFileError(f"{self.path}: not a readable HDF5 file ({exc}){hint}") from None
+            why = " ".join(str(exc).split())  # HDF5's messages span lines
+            raise RunFileError(f"{self.path}: not a readable HDF5 file ({why})") from None
         try:
             if self.f.attrs.get("format") != FORMAT:
                 raise RunFileError(f"{self.path}: not a cocd run file")

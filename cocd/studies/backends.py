@@ -95,7 +95,7 @@ class Settings:
     solvers: str | None = study.solvers(help="Comma-separated backends (default: every one here).")
     n2d: int = option(8308, "Discs in the 2D column.")
     n3d: int = option(2000, "Spheres in the 3D box.")
-    tol: float = option(1e-8, "Tolerance asked of every backend.")
+    tol: float = option(1e-8, "Tolerance asked of every backend.", positive=True)
     time_limit: float = study.time_limit(300.0)
     memory_gb: float | None = study.memory_gb()
 

@@ -48,7 +48,7 @@ class Settings:
         (6000, 12293, 30733), "Spheres in the column, one step each (two at least).", kind="ints"
     )
     full: int = option(12293, "Size whose step is also solved to tol (0: none).")
-    tol: float = option(1e-5, "Tolerance of the trajectory and of the full solve.")
+    tol: float = option(1e-5, "Tolerance of the trajectory and of the full solve.", positive=True)
     t_start: float = option(0.1, "Time (s) at the start of the measured step.")
 
 

@@ -75,7 +75,7 @@ class Settings:
 
     n: int = option(12293, "Spheres in the column (the seed's: 122932).")
     t_start: float = option(0.1, "Time (s) at the start of the solved step.")
-    tol: float = option(1e-5, "Tolerance of the trajectory and of every method.")
+    tol: float = option(1e-5, "Tolerance of the trajectory and of every method.", positive=True)
     time_limit: float = study.time_limit(60.0)
 
 

@@ -185,7 +185,7 @@ class Settings:
 
     folder: Path = study.problem_folder()
     solvers: str | None = study.solvers()
-    tol: float = option(1e-8, "Tolerance asked of every solver.")
+    tol: float = option(1e-8, "Tolerance asked of every solver.", positive=True)
     coulomb_target: float = option(1e-6, "natural_map_error counted as solving Coulomb.")
     time_limit: float = study.time_limit(60.0)
     memory_gb: float | None = study.memory_gb()

@@ -407,7 +407,7 @@ class Settings:
         None, "Comma-separated hard cases (default: all).", kind="names"
     )
     steps: int = option(5, "Steps per case.")
-    tol: float = option(1e-6, "Tolerance asked of every solver.")
+    tol: float = option(1e-6, "Tolerance asked of every solver.", positive=True)
     time_limit: float = study.time_limit(120.0)
     memory_gb: float | None = study.memory_gb()
 

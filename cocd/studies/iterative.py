@@ -49,7 +49,7 @@ class Settings:
 
     solvers: str = study.solvers("pgs,apgd,nscd", help="Iterative backends (comma-separated).")
     n: int = option(8308, "Discs in the 2D column.")
-    tol: float = option(1e-6, "Tolerance asked of every backend.")
+    tol: float = option(1e-6, "Tolerance asked of every backend.", positive=True)
     time_limit: float = study.time_limit(600.0)
     memory_gb: float | None = study.memory_gb()
 

@@ -62,7 +62,7 @@ class Settings:
 
     n2d: int = option(400, "Discs in the 2D column.")
     n3d: int = option(500, "Spheres in the 3D box.")
-    tol: float = option(1e-6, "Tolerance on the Coulomb residual.")
+    tol: float = option(1e-6, "Tolerance on the Coulomb residual.", positive=True)
     time_limit: float = study.time_limit(600.0)
 
 

@@ -53,7 +53,7 @@ class Settings:
 
     n: int = option(8308, "Discs in the 2D column.")
     solver: str = option("ipm", "Backend profiled.")
-    tol: float = option(1e-8, "Tolerance asked of the backend.")
+    tol: float = option(1e-8, "Tolerance asked of the backend.", positive=True)
     step: int = option(0, f"Which recorded step (0 to {STEPS - 1}).")
     top: int = option(25, "Functions listed per ordering.")
     trajectory: str = option("ipm", "Backend that steps the column.")

@@ -445,6 +445,8 @@ def _check(
     for name, value in (("t_end", t_end), ("dt", dt), ("threshold", threshold)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
             raise CocdError(f"{name} must be a finite number > 0, got {value!r}")
+    if threshold >= 1.0:  # Ek / (Ek + Ep) never reaches 1: every run would count as at rest
+        raise CocdError(f"threshold is a share of the energy, below 1, got {threshold!r}")
     if time_limit is not None and not (time_limit > 0.0):
         raise CocdError(f"time_limit must be > 0 (or None for no limit), got {time_limit!r}")
     if not (grace >= 0.0):

@@ -971,7 +971,7 @@ class RunSettings:
     """The options every seed validation has: how its simulations are solved and resumed."""
 
     solver: str = option("ipm", "Convex backend of the COCD runs.")
-    tol: float = option(1e-6, "Tolerance of the convex backend.")
+    tol: float = option(1e-6, "Tolerance of the convex backend.", positive=True)
     fallback: tuple[str, ...] = option(
         ("clarabel",), "Backends tried when a step fails (comma-separated).", kind="names"
     )
@@ -995,7 +995,9 @@ class LargeCollapseSettings(CollapseSettings):
     first-order backend at the seed's 3D tolerance, and no fallback."""
 
     solver: str = option("apgd", "Convex backend of the runs.")
-    tol: float = option(1e-5, "Tolerance of the convex backend (the seed's 3D choice).")
+    tol: float = option(
+        1e-5, "Tolerance of the convex backend (the seed's 3D choice).", positive=True
+    )
     fallback: tuple[str, ...] = option(
         (),
         "Backends tried when a step fails (comma-separated; none by default: a direct "

@@ -151,7 +151,7 @@ class Settings3D(Settings):
     name: ClassVar[str] = "avalanche3d"
 
     solver: str = option("apgd", "Convex backend of the COCD runs.")
-    tol: float = option(1e-5, "Tolerance of the convex backend.")
+    tol: float = option(1e-5, "Tolerance of the convex backend.", positive=True)
     n: int = option(2000, "Spheres in the layer.")
     length_d: float = option(40.0, "Box length along the slope, in diameters.")
     width_d: float = option(8.0, "Box width across the slope, in diameters.")

@@ -33,9 +33,9 @@ class Settings(CollapseSettings):
         (1.0, 2.0, 4.0, 8.0), "Profile times in units of sqrt(H0/g).", kind="floats", flag="--times"
     )
     mu: float = option(0.3, "Friction coefficient (grains and walls).")
-    tol: float = option(1e-8, "Tolerance of the convex backend.")
-    nscd_tol: float = option(1e-5, "Tolerance of nscd.")
-    nscd_max_iter: int = option(100000, "Sweeps allowed to nscd per step.")
+    tol: float = option(1e-8, "Tolerance of the convex backend.", positive=True)
+    nscd_tol: float = option(1e-5, "Tolerance of nscd.", positive=True)
+    nscd_max_iter: int = option(100000, "Sweeps allowed to nscd per step.", positive=True)
     nscd_fallback: tuple[str, ...] = option(
         ("nscd", "nscd:newton=True"),
         "Backends tried when an nscd step fails (comma-separated), with their own options "

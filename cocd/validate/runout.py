@@ -82,7 +82,7 @@ class Settings3D(Settings):
     name: ClassVar[str] = "runout3d_scaling"
 
     solver: str = option("apgd", "Convex backend of the COCD runs.")
-    tol: float = option(1e-5, "Tolerance of the convex backend.")
+    tol: float = option(1e-5, "Tolerance of the convex backend.", positive=True)
     aspects: tuple[float, ...] = option(
         (1.0, 1.4, 1.9, 2.7, 3.8, 5.3, 6.3, 7.4, 10.0, 14.0),
         "Aspect ratios H0/L0 asked (seed 001: logarithmically from 1 to 20). The lattice "

@@ -40,7 +40,7 @@ class Settings(CollapseSettings):
     dts: tuple[float, ...] = option((1e-3, 1e-4, 5e-5), "Time steps (s).", kind="floats")
     times: tuple[float, ...] = option((0.02, 0.06, 0.3), "Profile times (s).", kind="floats")
     mu: float = option(0.3, "Friction coefficient (grains and walls).")
-    tol: float = option(1e-8, "Tolerance of the convex backend.")
+    tol: float = option(1e-8, "Tolerance of the convex backend.", positive=True)
     seeds: int = option(
         1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1 (same lattice sites)."
     )
