@@ -438,6 +438,10 @@ def test_bad_study_options_are_refused_before_any_work(tmp_path):
         assert not list(tmp_path.glob("*.csv"))
     result = runner.invoke(app, ["bench", "stability", "--threshold", "2", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "below 1" in result.output
+    args = ["validate", "nscd", "--nscd-fallback", "nosuch", "--out", str(tmp_path)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "unknown solver 'nosuch'" in result.output
+    assert not list(tmp_path.glob("runs/*"))
     args = ["bench", "hard", "--cases", "zero_gap,zero_gap", "--out", str(tmp_path)]
     result = runner.invoke(app, args)
     assert result.exit_code == 2 and "--cases repeats 'zero_gap'" in result.output
