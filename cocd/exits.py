@@ -28,13 +28,14 @@ def fail(exc: Exception) -> NoReturn:
 def os_message(exc: OSError) -> str:
     """``Permission denied: '/a/b'`` (the system's words and the path, no errno)."""
     paths = [repr(str(p)) for p in (exc.filename, exc.filename2) if p is not None]
-    words = exc.strerror or str(exc)
+    words = " ".join((exc.strerror or str(exc) or type(exc).__name__).split())
     return f"{words}: {' -> '.join(paths)}" if paths else words
 
 
 class OneLineErrors(TyperGroup):
     """The root command group: a file the system will not read or write (a read-only
-    folder, a file where a folder is needed) or a setting a configuration model refuses,
+    folder, a file where a folder is needed: an ``OSError`` with an errno or a path) or
+    a setting a configuration model refuses,
     met anywhere under any command, ends the command with one line on stderr and
     :data:`EXIT_ERROR`, as a :class:`~cocd.errors.CocdError` does, not a traceback."""
 
@@ -44,10 +45,13 @@ class OneLineErrors(TyperGroup):
         try:
             return super().invoke(ctx)
         except OSError as exc:
+            if exc.errno is None and exc.filename is None:
+                raise  # not the system refusing a file: a fault to be seen whole
             fail(Exception(os_message(exc)))
         except ValidationError as exc:
             wrong = "; ".join(
-                f"{'.'.join(str(part) for part in err['loc'])}: {err['msg']}"
+                f"{'.'.join(str(part) for part in err['loc'])}: "
+                + str(err["msg"]).removeprefix("Value error, ")
                 for err in exc.errors()
             )
             fail(Exception(f"invalid setting {wrong}"))

@@ -10,7 +10,7 @@ from cocd.errors import CocdError
 
 def check_run_folder(folder: Path, *, resume: bool, force: bool) -> None:
     """Refuse, before any work, a run folder that would lose a run or cannot be written."""
-    from cocd.runs import DERIVED_FILES, MEASURED_FILES, RUN_FILE, existing_run, holds_no_step
+    from cocd.runs import RUN_FILE, existing_run, holds_no_step
 
     path = folder / RUN_FILE
     if folder.exists() and not folder.is_dir():
@@ -26,12 +26,11 @@ def check_run_folder(folder: Path, *, resume: bool, force: bool) -> None:
             f"{folder} already holds a run ({existing_run(path)}): "
             "--resume continues it, --force replaces it"
         )
-    # Files a run writes, in a folder without a run file: someone else's, not replaced.
-    theirs = [n for n in DERIVED_FILES if n not in MEASURED_FILES and (folder / n).exists()]
-    if theirs and not path.exists() and not force:
+    # The table a run writes, in a folder without a run file: someone else's.
+    if (folder / "stats.csv").exists() and not path.exists() and not force:
         raise CocdError(
-            f"{folder} holds {', '.join(theirs)} but no run file: a run would replace "
-            f"{'it' if len(theirs) == 1 else 'them'}; --force does, or give another --out"
+            f"{folder} holds a stats.csv but no run file: a run would replace it; "
+            "--force does, or give another --out"
         )
     writable_folder(folder, "--out")
 

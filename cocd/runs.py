@@ -11,6 +11,7 @@ in the same final state.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -187,7 +188,7 @@ def export_step(
             )
         target = Path(run_path).parent / f"step_{k:06d}.hdf5" if out is None else Path(out)
         writable_file(target, "--out")
-        if target.exists() and target.resolve() == Path(run_path).resolve():
+        if target.exists() and os.path.samefile(target, run_path):
             raise CocdError(f"--out {target} is the run file itself: give another file")
         if target.exists() and not force:
             raise CocdError(f"{target} exists: --force replaces it")
@@ -218,9 +219,13 @@ def _state_at(
 def holds_no_step(path: Path) -> bool:
     """Whether ``path`` is a readable run file without a step: a run that stopped before
     its first (a backend's bad option, say) holds nothing a new run would lose."""
-    try:
+    import h5py
+
+    try:  # a file a run still writes (or a killed run) opens only live: not this one
+        with h5py.File(path, "r"):
+            pass
         with RunFile(path) as rf:
-            return len(rf.records()) == 0
+            return rf.n_frames == 1 and len(rf.records()) == 0
     except (RunFileError, OSError, KeyError, AttributeError):
         return False
 

@@ -127,6 +127,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
             "steps": [220, 220, 220],
             "dt": [0.01, 0.01, 0.01 * (1 + 1e-12)],
             "bound": [float("inf")] * 3,
+            "limit": [float("inf"), 5.0, 5.0],
         }
     )
     write_table(tmp_path, "demo", table, title="Demo")
@@ -140,7 +141,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         "{{demo.rest_s[t=0.2]:.2f|not by the end}}; {{demo.rest_s[t=0.3]|none}} s, "
         "{{max demo.rest_s[t=0.2] | never}}. Each of {{count demo.steps}} runs made "
         "{{same demo.steps}} steps of {{same demo.dt}} s; the cases {{same demo.case[t=0.3]}}; "
-        "no bound ({{same demo.bound}})."
+        "no bound ({{same demo.bound}}); {{count demo.t[limit=5]}} limits of 5."
     )
     result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
@@ -150,7 +151,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     # its format says (the default when none is given before the bar).
     assert "At rest from 1.50 s and not by the end; 2 s, never." in text
     # `same` is the value every row that matches holds (numbers as rows are matched).
-    assert "Each of 3 runs made 220 steps of 0.01 s; the cases b; no bound (inf)." in text
+    assert "Each of 3 runs made 220 steps of 0.01 s; the cases b; no bound (inf)" in text
+    assert "; 2 limits of 5." in text  # an infinity matches only itself
     # Each way of naming what the table does not hold is refused, naming the placeholder.
     for bad, why in (
         ("{{demo.error[t=0.4]}}", "0 rows match, not one"),
@@ -163,6 +165,7 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         ("{{demo.rest_s[t=0.2]|}}", "not a placeholder cocd can read"),
         ("{{same demo.error}}", "the rows that match differ (0.5, 0.25, 0.125)"),
         ("{{same demo.case}}", "the rows that match differ (a, b)"),
+        ("{{same demo.limit}}", "the rows that match differ (inf, 5.0)"),
         ("{{same demo.rest_s[case=b]}}", "the rows that match differ"),
         ("{{same demo.steps[case=c]}}", "no row matches"),
         ("{{demo.error[t=0.1]:}}", "not a placeholder cocd can read"),

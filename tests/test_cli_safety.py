@@ -336,7 +336,7 @@ def test_files_a_run_writes_are_not_taken_from_a_folder_without_a_run(tmp_path):
     result = _run("--steps", "2", "--out", str(out))
     assert result.exit_code == 2
     assert result.output.strip() == (
-        f"error: {out} holds stats.csv but no run file: a run would replace it; "
+        f"error: {out} holds a stats.csv but no run file: a run would replace it; "
         "--force does, or give another --out"
     )
     assert (out / "stats.csv").read_text() == "mine" and not (out / "run.h5").exists()
@@ -372,7 +372,7 @@ def test_file_system_refusals_are_one_line_errors(tmp_path):
         (["export", "vtu", run_file, "--out", str(tmp_path / "afile")], "a file is in the way"),
         (["plot", str(out), "energy"], f"{out} is a folder, not a run file"),
         (["export", "fclib", run_file, "--out", run_file, "--force"], "is the run file itself"),
-        (["plot", run_file, "energy", "--out", str(tmp_path / "p.txt")], "cannot be written as '.txt'"),
+        (["plot", run_file, "energy", "--out", str(tmp_path / "p.txt")], "as '.txt'"),
         (["bench", "readme", "--out", str(tmp_path / "afile")], "is a file"),
     ):  # fmt: skip
         result = runner.invoke(app, args)
@@ -445,3 +445,31 @@ def test_bad_study_options_are_refused_before_any_work(tmp_path):
     args = ["bench", "hard", "--cases", "zero_gap,zero_gap", "--out", str(tmp_path)]
     result = runner.invoke(app, args)
     assert result.exit_code == 2 and "--cases repeats 'zero_gap'" in result.output
+
+
+def test_a_run_still_writing_its_first_frame_is_not_taken_for_an_empty_one(tmp_path):
+    """A run file another process writes (or a killed run left) is not replaced by a
+    plain run, even before its first step reaches the disk."""
+    import subprocess
+    import sys
+
+    from cocd.runs import holds_no_step
+
+    failed = tmp_path / "failed"
+    _run("--steps", "2", "--out", str(failed), "--solver", "clarabel:no_such=1")
+    path = failed / "run.h5"
+    assert holds_no_step(path)
+    writer = (  # opens the file as a run's writer does, and holds it
+        "import h5py, sys, time\n"
+        f"f = h5py.File({str(path)!r}, 'a', libver='latest')\n"
+        "f.swmr_mode = True\nprint('open', flush=True)\ntime.sleep(60)\n"
+    )
+    child = subprocess.Popen([sys.executable, "-c", writer], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "open"
+        assert not holds_no_step(path)
+        result = _run("--steps", "2", "--out", str(failed))
+        assert result.exit_code == 2 and "already holds a run" in result.output
+    finally:
+        child.kill()
+        child.wait()

@@ -159,19 +159,33 @@ def test_interrupted_sweep_runs_only_the_missing_cells(tmp_path, client):
     [
         ('steps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["b"]\n', "not among"),
         ('steps = 1\n[scenes.a]\nbuilder = "stak"\n[grid]\nscene = ["a"]\n', "unknown builder"),
-        ('steps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\ncolour = [1]\n',
-         "unknown axis 'colour'"),  # fmt: skip
+        (
+            'steps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\ncolour = [1]\n',
+            "unknown axis 'colour'",
+        ),
         ('[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n', "exactly one of steps"),
-        ('steps = 1\n[scenes.a]\nbuilder = "stack"\nparams = { n_grains = 2 }\n[grid]\n'
-         'scene = ["a"]\ntol = [-1.0]\n', "run.tol: Input should be greater than 0"),  # fmt: skip
-        ('steps = 1\nspeed = 2\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n',
-         "speed: unknown key"),  # fmt: skip
-        ('steps = 1\n[scenes.a]\nbuilder = "stack"\nparams = { n_grains = 2 }\n[grid]\n'
-         'scene = ["a"]\nsolver = ["clarabel", "nope"]\n', "cell .*'solver': 'nope'.*unknown solver 'nope'"),  # fmt: skip
-        ('name = "../../out"\nsteps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n',
-         "name: must be a plain file name"),  # fmt: skip
-        ('steps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n'
-         'tol = [1e-6, 1e-6]\n', "axis 'tol' repeats 1e-06: its cells would run twice"),  # fmt: skip
+        (
+            'steps = 1\n[scenes.a]\nbuilder = "stack"\nparams = { n_grains = 2 }\n[grid]\n'
+            'scene = ["a"]\ntol = [-1.0]\n',
+            "run.tol: Input should be greater than 0",
+        ),
+        (
+            'steps = 1\nspeed = 2\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n',
+            "speed: unknown key",
+        ),
+        (
+            'steps = 1\n[scenes.a]\nbuilder = "stack"\nparams = { n_grains = 2 }\n[grid]\n'
+            'scene = ["a"]\nsolver = ["clarabel", "nope"]\n',
+            "cell .*'solver': 'nope'.*unknown solver 'nope'",
+        ),
+        (
+            'name = "../../out"\nsteps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\n',
+            "name: must be a plain file name",
+        ),
+        (
+            'steps = 1\n[scenes.a]\nbuilder = "stack"\n[grid]\nscene = ["a"]\ntol = [1e-6, 1e-6]\n',
+            "axis 'tol' repeats 1e-06: its cells would run twice",
+        ),
     ],
 )
 def test_bad_sweep_files_are_named(tmp_path, text, message):

@@ -327,7 +327,7 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
         if note.exists():
             lines += [fill_note(note.read_text(), out, note.name).strip(), ""]
     readme = out / "README.md"
-    readme.write_text("\n".join(lines).rstrip() + "\n")
+    readme.write_text("\n".join(lines).rstrip() + "\n", encoding="utf-8")
     return readme
 
 
@@ -426,8 +426,10 @@ def _matches(column: pd.Series, want: str) -> pd.Series:
 
 def _close(a: float, b: float) -> bool:
     """Equal to 1e-9 relative, as a note's numbers and conditions are compared
-    (infinities equal only to themselves, NaN to nothing)."""
-    return a == b or abs(a - b) <= 1e-9 * max(abs(a), abs(b), 1e-300)
+    (an infinity equal only to itself, NaN to nothing)."""
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return a == b
+    return abs(a - b) <= 1e-9 * max(abs(a), abs(b), 1e-300)
 
 
 def throttled(

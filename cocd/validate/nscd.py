@@ -86,10 +86,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if times[0] <= 0.0:
         raise CocdError(f"times_T {times_T} round to t = 0 s: ask for later times")
     seeds = base.positive_int("seeds", cfg.seeds)
-    import solvers
+    from solvers.registry import requested
 
-    for backend in cfg.nscd_fallback:  # named before the COCD runs, not after them
-        solvers.get(backend)
+    for backend in cfg.nscd_fallback:  # named, with their options, before the COCD runs
+        requested(backend, {}, {})
     twin_tol = base.twin_tolerance("nscd_twin_tol", cfg.nscd_twin_tol, cfg.nscd_tol, "nscd_tol")
     per_seed = 3 if twin_tol else 2
     estimate.announce(
