@@ -434,7 +434,7 @@ def test_bad_study_options_are_refused_before_any_work(tmp_path):
     ):
         result = runner.invoke(app, [*args, "--out", str(tmp_path)])
         assert result.exit_code == 2, (args, result.output)
-        assert "must be a positive number" in result.output, (args, result.output)
+        assert "must be a finite number > 0" in result.output, (args, result.output)
         assert not list(tmp_path.glob("*.csv"))
     result = runner.invoke(app, ["bench", "stability", "--threshold", "2", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "below 1" in result.output

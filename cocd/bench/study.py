@@ -319,7 +319,7 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
                 if f.metadata.get("positive") and value is not None:
                     number = float(value)
                     if not (math.isfinite(number) and number > 0):
-                        raise CocdError(f"{_flag(f)} must be a positive number, got {value!r}")
+                        raise CocdError(f"{_flag(f)} must be a finite number > 0, got {value!r}")
                 values[f.name] = value
             writable_folder(where, "--out")
             from cocd.bench.report import check_readme_ours
