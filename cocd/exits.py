@@ -33,11 +33,11 @@ def os_message(exc: OSError) -> str:
 
 
 class OneLineErrors(TyperGroup):
-    """The root command group: a file the system will not read or write (a read-only
-    folder, a file where a folder is needed: an ``OSError`` with an errno or a path) or
-    a setting a configuration model refuses,
-    met anywhere under any command, ends the command with one line on stderr and
-    :data:`EXIT_ERROR`, as a :class:`~cocd.errors.CocdError` does, not a traceback."""
+    """The root command group. A file the system will not read or write (a read-only
+    folder, a file where a folder is needed: an ``OSError`` with an errno or a path),
+    or a setting a configuration model refuses, met anywhere under any command, ends
+    the command with one line on stderr and :data:`EXIT_ERROR`, as a
+    :class:`~cocd.errors.CocdError` does, not with a traceback."""
 
     def invoke(self, ctx: Any) -> Any:
         from pydantic import ValidationError
