@@ -496,8 +496,8 @@ def _summary(
         )
         parts.append(
             f"{row['slope_deg']:g} deg: Hf / H0 {pm(row, 'Hf_over_H0')}, runout from the "
-            f"gate {pm(row, 'runout_m')} m, {rest} ({few}), front settled at "
-            f"{pm(row, 't_front_s')} s"
+            f"gate {pm(row, 'runout_m')} m, {rest} ({few}), front within a diameter of "
+            f"its last place from {pm(row, 't_front_s')} s"
         )
     n_free = ", ".join(str(n) for n in sorted(set(table.n_free)))
     return (
