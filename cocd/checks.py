@@ -35,6 +35,7 @@ __all__ = [
     "finite_nonnegative",
     "finite_positive",
     "finite_scalar",
+    "first_repeat",
     "float_array",
     "friction_coefficient",
     "nonnegative_number",
@@ -45,6 +46,17 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+
+
+def first_repeat(values: list[Any], key: Callable[[Any], Any] = lambda v: v) -> int | None:
+    """The index of the first of ``values`` whose ``key`` an earlier one has, else None:
+    a list that would run one case twice."""
+    seen: list[Any] = []
+    for k, value in enumerate(values):
+        if key(value) in seen:
+            return k
+        seen.append(key(value))
+    return None
 
 
 def float_array(value: object, name: str) -> FloatArray:

@@ -56,6 +56,7 @@ import pydantic
 import tomllib
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from cocd.checks import first_repeat
 from cocd.config import ConfigError, known_builder, parse_config
 from cocd.errors import CocdError
 
@@ -111,10 +112,11 @@ class SweepSpec(BaseModel):
                 raise ValueError(f"unknown axis {key!r}; use {', '.join(AXES)} or params.<name>")
             if not values:
                 raise ValueError(f"axis {key!r} has no values")
-            seen = [json.dumps(v, sort_keys=True, default=str) for v in values]
-            again = next((v for k, v in enumerate(values) if seen[k] in seen[:k]), None)
+            again = first_repeat(values, key=lambda v: json.dumps(v, sort_keys=True, default=str))
             if again is not None:
-                raise ValueError(f"axis {key!r} repeats {again!r}: its cells would run twice")
+                raise ValueError(
+                    f"axis {key!r} repeats {values[again]!r}: its cells would run twice"
+                )
         if "scene" not in grid:
             raise ValueError("the grid needs a 'scene' axis")
         return grid

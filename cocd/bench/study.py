@@ -27,6 +27,7 @@ from typing import Annotated, Any, Literal
 
 import typer
 
+from cocd.checks import first_repeat
 from cocd.errors import CocdError
 from cocd.exits import fail
 from cocd.outputs import writable_folder
@@ -229,9 +230,9 @@ def parse_list(text: str, kind: Kind, what: str) -> tuple[Any, ...]:
     """Comma-separated values of ``kind``; a one-line error naming ``what`` otherwise."""
     words = [w.strip() for w in text.split(",") if w.strip()]
     if kind == "names":
-        again = next((w for k, w in enumerate(words) if w in words[:k]), None)
+        again = first_repeat(words)
         if again is not None:  # it would be run, and tabled, twice
-            raise CocdError(f"{what} repeats {again!r}")
+            raise CocdError(f"{what} repeats {words[again]!r}")
         return tuple(words)
     if kind == "ints":
         try:
