@@ -329,12 +329,18 @@ def export_vtu_command(
     out: Annotated[
         Path | None, typer.Option("--out", help="Output folder (default: RUN_FILE's, vtu/).")
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace a series already in a folder named with --out.")
+    ] = False,
 ) -> None:
     """VTU files per frame and PVD series for ParaView: grains as points, contacts as lines."""
-    from cocd.export import export_vtu
+    from cocd.export import VTU_SERIES, export_vtu
 
     folder = out if out is not None else run_file.parent / "vtu"
     try:
+        if out is not None and not force:
+            for name in VTU_SERIES:
+                writable_file(folder / f"{name}.pvd", "--out")
         writable_folder(folder, "--out")
         paths = export_vtu(run_file, folder, every=every)
     except CocdError as exc:
@@ -388,13 +394,16 @@ def plot_command(
         int | None,
         typer.Option("--frame", help="Frame of a snapshot (default the last; -1 the last)."),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace an output file named with --out.")
+    ] = False,
 ) -> None:
     """Draw a figure of a run: profiles, front, energies, step statistics, the grains, a movie."""
     from cocd.plots import plot_run
 
     try:
         if out is not None:
-            writable_file(out, "--out")
+            writable_file(out, "--out", replace=force)
         path = plot_run(run_file, kind, out, frame=frame)  # says the path it wrote
     except CocdError as exc:
         fail(exc)
@@ -409,6 +418,9 @@ def show_command(
         Path | None,
         typer.Option("--out", help="PNG file (default: cocd-runs/<scene name>/scene.png)."),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace an output file named with --out.")
+    ] = False,
 ) -> None:
     """The scene before any step: one summary line and a snapshot (PNG)."""
     import numpy as np
@@ -421,7 +433,7 @@ def show_command(
         from cocd.plots import figure_path
 
         target = figure_path(out if out is not None else Path("cocd-runs") / scene.stem / "scene")
-        writable_file(target, "--out")
+        writable_file(target, "--out", replace=force or out is None)
         built = build_scene(config, str(scene))
         stepper = config.stepper(built)
         contacts = detect_contacts(

@@ -29,7 +29,10 @@ import numpy as np
 
 from cocd.io.runfile import Frame, RunFile
 
-__all__ = ["export_vtu"]
+__all__ = ["VTU_SERIES", "export_vtu"]
+
+#: The series written, each as ``<name>.pvd`` and ``<name>_{k:06d}.vtu``.
+VTU_SERIES = ("grains", "contacts")
 
 
 def export_vtu(
@@ -46,7 +49,7 @@ def export_vtu(
         raise CocdError(f"--every must be >= 1, got {every}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    series: dict[str, list[tuple[float, str]]] = {"grains": [], "contacts": []}
+    series: dict[str, list[tuple[float, str]]] = {name: [] for name in VTU_SERIES}
     with RunFile(run_path) as rf:
         dt = float(rf.config.get("run", {}).get("dt", float("nan")))
         fixed = np.asarray(rf.f["scene/fixed"][:], dtype=np.int8)
@@ -56,7 +59,7 @@ def export_vtu(
             frame = rf.frame(k)
             grains = _grain_mesh(frame, rf.radii, fixed)
             contacts = _contact_mesh(frame, walls, dt)
-            for name, mesh in (("grains", grains), ("contacts", contacts)):
+            for name, mesh in zip(VTU_SERIES, (grains, contacts), strict=True):
                 file = f"{name}_{k:06d}.vtu"
                 if len(mesh.points):
                     mesh.write(out / file)

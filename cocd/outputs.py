@@ -50,8 +50,11 @@ def writable_folder(folder: Path, what: str) -> None:
         raise CocdError(f"{what} {folder} cannot be written: {reason}") from None
 
 
-def writable_file(path: Path, what: str) -> None:
-    """Check, before any work, that ``path`` can be written (its folder is created)."""
+def writable_file(path: Path, what: str, *, replace: bool = False) -> None:
+    """Check, before any work, that ``path`` can be written (its folder is created) and,
+    unless ``replace`` (the command's ``--force``), that no file is there already."""
     if path.is_dir():
         raise CocdError(f"{what} {path} is a folder, not a file")
+    if path.exists() and not replace:
+        raise CocdError(f"{what} {path} exists: --force replaces it")
     writable_folder(path.parent, what + " folder")

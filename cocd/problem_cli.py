@@ -70,6 +70,9 @@ def problem_solve(
             "velocities), v (generalized velocities, global problems).",
         ),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace the file named with --save-solution.")
+    ] = False,
 ) -> None:
     """Solve one problem with one backend; report cocd's residuals and the natural map error.
 
@@ -88,7 +91,7 @@ def problem_solve(
                 save_solution = save_solution.with_name(save_solution.name + ".npz")
             if save_solution.suffix != ".npz":
                 raise CocdError(f"--save-solution writes .npz, not {save_solution.name!r}")
-            writable_file(save_solution, "--save-solution")
+            writable_file(save_solution, "--save-solution", replace=force)
         problem = read_problem(file)
         record, answer = solve_external(problem, solver, tol, time_limit=time_limit)
     except CocdError as exc:

@@ -187,11 +187,9 @@ def export_step(
                 f"--step must be between 1 and {done} (the steps of {run_path}), got {k}"
             )
         target = Path(run_path).parent / f"step_{k:06d}.hdf5" if out is None else Path(out)
-        writable_file(target, "--out")
         if target.exists() and os.path.samefile(target, run_path):
             raise CocdError(f"--out {target} is the run file itself: give another file")
-        if target.exists() and not force:
-            raise CocdError(f"{target} exists: --force replaces it")
+        writable_file(target, "--out", replace=force)
         config = parse_config(
             rf.config, f"{run_path} (its configuration is not one this cocd runs)", params=False
         )

@@ -360,6 +360,45 @@ def test_files_a_run_writes_are_not_taken_from_a_folder_without_a_run(tmp_path):
     assert _steps(failed) == 2
 
 
+def test_an_output_named_on_the_command_line_is_replaced_only_with_force(tmp_path):
+    """plot, show, export vtu and problem solve keep a file already at the --out (or
+    --save-solution) they are given, naming --force, which replaces it; their default
+    outputs, made again from the run or scene, are replaced."""
+    from pathlib import Path
+
+    from cocd import Stepper, column_2d
+
+    out = tmp_path / "run"
+    assert _run("--steps", "2", "--out", str(out)).exit_code == 0
+    run_file = str(out / "run.h5")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    example = str(Path(__file__).resolve().parents[1] / "examples" / "column_collapse.toml")
+    Stepper(column_2d(40, mu=0.4), 1e-3, fclib_dir=tmp_path, fclib_steps=[1]).run(2)
+    problem = str(tmp_path / "step_000001.hdf5")
+    cases = [
+        (["plot", run_file, "energy", "--out"], mine / "fig.png", "--out"),
+        (["show", example, "--out"], mine / "scene.png", "--out"),
+        (["export", "vtu", run_file, "--out"], mine, "--out"),
+        (["problem", "solve", problem, "--save-solution"], mine / "a.npz", "--save-solution"),
+    ]
+    for args, target, option in cases:
+        kept = target / "grains.pvd" if target.is_dir() else target
+        kept.write_text("mine")
+        result = runner.invoke(app, [*args, str(target)])
+        assert result.exit_code == 2, (args, result.output)
+        assert result.output.strip() == f"error: {option} {kept} exists: --force replaces it"
+        assert kept.read_text() == "mine"
+        result = runner.invoke(app, [*args, str(target), "--force"])
+        assert result.exit_code == 0, (args, result.output)
+        assert kept.read_bytes() != b"mine"
+    # The defaults are made again without --force.
+    for args in (["plot", run_file, "energy"], ["export", "vtu", run_file]):
+        assert runner.invoke(app, args).exit_code == 0
+        result = runner.invoke(app, args)
+        assert result.exit_code == 0, result.output
+
+
 def test_file_system_refusals_are_one_line_errors(tmp_path):
     """A file where a folder is needed, or a folder where a file is, anywhere under any
     command, ends in one line and exit 2, not a traceback; the input run is never the
