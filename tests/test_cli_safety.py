@@ -486,6 +486,36 @@ def test_bad_study_options_are_refused_before_any_work(tmp_path):
     assert result.exit_code == 2 and "--cases repeats 'zero_gap'" in result.output
 
 
+def test_options_one_would_ignore_are_refused(tmp_path, monkeypatch):
+    """An option and its old name given together, or an option for a case the others
+    leave out, is a one-line error: never one of them silently dropped."""
+    from cocd.errors import CocdError
+    from cocd.studies import scaling, table1
+
+    def work(*args, **kwargs):
+        raise CocdError("reached the work")
+
+    monkeypatch.setattr(scaling, "Results", work)
+    monkeypatch.setattr(table1, "Results", work)
+    out = ["--out", str(tmp_path)]
+    for args, message in (
+        (["bench", "stability", "--tols", "1e-3", "--eps-list", "1e-4"],
+         "--tols and --eps-list name one option: give one of them"),
+        (["bench", "scaling", "--packings", "column", "--n3d-box", "30"],
+         "--n3d-box sizes the box packing, which --packings leaves out"),
+        (["bench", "table1", "--cases", "2d", "--scale-3d", "0.5"],
+         "--scale-3d scales the 3D case, which --cases leaves out"),
+        (["bench", "table1", "--cases", "2d,3d", "--scale-3d", "0.5"], "reached the work"),
+    ):  # fmt: skip
+        result = runner.invoke(app, [*args, *out])
+        assert result.exit_code == 2, (args, result.output)
+        assert result.output.strip() == f"error: {message}", args
+    # The old name alone still works (it is read as the new one).
+    monkeypatch.setattr("cocd.bench.study.writable_folder", work)
+    result = runner.invoke(app, ["bench", "stability", "--eps-list", "0", *out])
+    assert result.output.strip() == "error: --eps-list must be positive numbers, got '0'"
+
+
 def test_a_run_still_writing_its_first_frame_is_not_taken_for_an_empty_one(tmp_path):
     """A run file another process writes (or a killed run left) is not replaced by a
     plain run, even before its first step reaches the disk."""

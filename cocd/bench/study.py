@@ -275,7 +275,7 @@ def _parameter(f: dataclasses.Field, hints: dict[str, Any]) -> inspect.Parameter
     info = (
         typer.Argument(help=meta["help"])
         if meta.get("argument")
-        else typer.Option(_flag(f), *meta.get("aliases", ()), help=meta["help"])
+        else typer.Option(_flag(f), help=meta["help"])
     )
     param_default = inspect.Parameter.empty if default is dataclasses.MISSING else default
     return inspect.Parameter(
@@ -284,6 +284,43 @@ def _parameter(f: dataclasses.Field, hints: dict[str, Any]) -> inspect.Parameter
         default=param_default,
         annotation=Annotated[kind_type, info],
     )
+
+
+def _alias_parameters(f: dataclasses.Field, hints: dict[str, Any]) -> list[inspect.Parameter]:
+    """A hidden parameter per old flag of ``f``, so that the command sees which was given."""
+    kind_type: Any = str if f.metadata.get("kind") is not None else hints[f.name]
+    return [
+        inspect.Parameter(
+            _alias_name(f, k),
+            inspect.Parameter.KEYWORD_ONLY,
+            default=None,
+            annotation=Annotated[kind_type | None, typer.Option(alias, hidden=True)],
+        )
+        for k, alias in enumerate(f.metadata.get("aliases", ()))
+    ]
+
+
+def _alias_name(f: dataclasses.Field, k: int) -> str:
+    return f"{f.name}__alias{k}"
+
+
+def _given(f: dataclasses.Field, kwargs: dict[str, Any], context: Any) -> tuple[Any, str]:
+    """The value of ``f`` as given on the command line (``context``, Typer's), under its
+    flag or one old flag (popped from ``kwargs``), and that flag; both, or two old flags,
+    are refused."""
+    value = kwargs[f.name]
+    given: list[str] = []
+    for k, alias in enumerate(f.metadata.get("aliases", ())):
+        old = kwargs.pop(_alias_name(f, k), None)
+        if old is not None:
+            given.append(alias)
+            value = old
+    source = None if context is None else context.get_parameter_source(f.name)
+    if given and getattr(source, "name", None) == "COMMANDLINE":
+        given.insert(0, _flag(f))
+    if len(given) > 1:
+        raise CocdError(f"{' and '.join(given)} name one option: give one of them")
+    return value, given[0] if given else _flag(f)
 
 
 def _out_help(default: Path) -> str:
@@ -299,6 +336,9 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
     fields = dataclasses.fields(study.settings)
     out_default = out or DEFAULT_OUT[study.group]
     params = [_parameter(f, hints) for f in fields]
+    params += [p for f in fields for p in _alias_parameters(f, hints)]
+    params.append(inspect.Parameter("context", inspect.Parameter.KEYWORD_ONLY,
+                                    default=None, annotation=typer.Context))  # fmt: skip
     params.append(
         inspect.Parameter(
             "out",
@@ -310,17 +350,18 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
 
     def run_command(**kwargs: Any) -> None:
         where = Path(kwargs.pop("out"))
+        context = kwargs.pop("context", None)
         try:
             values = {}
             for f in fields:
-                value = kwargs[f.name]
+                value, flag = _given(f, kwargs, context)
                 kind = f.metadata.get("kind")
                 if kind is not None and value is not None:
-                    value = parse_list(value, kind, _flag(f))
+                    value = parse_list(value, kind, flag)
                 if f.metadata.get("positive") and value is not None:
                     number = float(value)
                     if not (math.isfinite(number) and number > 0):
-                        raise CocdError(f"{_flag(f)} must be a finite number > 0, got {value!r}")
+                        raise CocdError(f"{flag} must be a finite number > 0, got {value!r}")
                 values[f.name] = value
             writable_folder(where, "--out")
             from cocd.bench.report import check_readme_ours

@@ -174,6 +174,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
             f"unknown 3D packing {', '.join(map(repr, unknown)) or '(none given)'}; "
             f"choose from {', '.join(PACKINGS_3D)}"
         )
+    if cfg.n3d_box is not None and "box" not in packings:
+        raise CocdError("--n3d-box sizes the box packing, which --packings leaves out")
     if cfg.steps < 1:
         raise CocdError(f"steps must be >= 1, got {cfg.steps}")
     if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):

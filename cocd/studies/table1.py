@@ -163,6 +163,8 @@ def run(
     scale, steps, wanted = _check(cfg.scale, cfg.cases, cfg.steps, cfg.time_limit, cfg.memory_gb)
     if cfg.row_budget is not None and not (math.isfinite(cfg.row_budget) and cfg.row_budget > 0):
         raise CocdError(f"row budget must be > 0 seconds, got {cfg.row_budget!r}")
+    if cfg.scale_3d is not None and "3d" not in wanted:
+        raise CocdError("--scale-3d scales the 3D case, which --cases leaves out")
     scale_3d, _, _ = _check(
         scale if cfg.scale_3d is None else cfg.scale_3d, cfg.cases, steps, cfg.time_limit, None
     )
