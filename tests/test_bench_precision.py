@@ -205,7 +205,7 @@ def test_clarabel_reaches_tight_tolerances_and_error_falls(tiny_run):
         ({"n2d": 0, "n3d": 0}, "both 0"),
         ({"n2d": -5}, "n2d must be an integer >= 0"),
         ({"n3d": -1}, "n3d must be an integer >= 0"),
-        ({"time_limit": 0.0}, "time_limit"),
+        ({"time_limit": 0.0}, "--time-limit must be a finite number > 0"),
         ({"solvers": "no-such-solver"}, "no-such-solver"),
     ],
 )

@@ -185,7 +185,7 @@ def test_run_budget_stops_a_slow_run(tmp_path, monkeypatch):
     assert row["note"].startswith("run budget of 0.3 s") and not row["at_rest"]
     meta = json.loads((tmp_path / "stability.meta.json").read_text())
     assert f"budget spent at step {row['steps_done']}" in meta["summary"]
-    with pytest.raises(CocdError, match="run_budget"):
+    with pytest.raises(CocdError, match="--run-budget must be a finite number > 0"):
         stability.STUDY(solvers="clarabel", tols=[1e-8], out=tmp_path, run_budget=0.0, **BASE)
 
 

@@ -186,7 +186,7 @@ def test_table1_row_budget_stops_a_row(tmp_path, cache):
     row = df[df.source == "this machine"].iloc[0]
     assert row.steps_ok == "1/2"
     assert "row budget of 1e-09 s spent after 1 steps" in row.note
-    with pytest.raises(CocdError, match="row budget must be > 0"):
+    with pytest.raises(CocdError, match="--row-budget must be a finite number > 0"):
         table1.STUDY(solvers="clarabel", time_limit=60.0, out=tmp_path, row_budget=0.0, **TINY)
 
 
@@ -198,7 +198,7 @@ def test_table1_row_budget_stops_a_row(tmp_path, cache):
         (dict(scale=0.0), "scale must be in (0, 1]"),
         (dict(scale=1.5), "scale must be in (0, 1]"),
         (dict(steps=0), "steps must be an integer >= 1"),
-        (dict(time_limit=0.0), "time_limit must be > 0"),
+        (dict(time_limit=0.0), "--time-limit must be a finite number > 0"),
         (dict(solvers="nope"), "unknown solver 'nope'"),
     ],
 )

@@ -60,6 +60,7 @@ def test_the_readme_example_runs_from_the_command_line_and_from_python(example, 
         (["--n", "0"], "--n must be positive integers, got '0'"),
         (["--n", "4,x"], "--n must be comma-separated integers"),
         (["--solvers", "nope"], "unknown solver 'nope'"),
+        (["--tol", "0"], "--tol must be a finite number > 0, got 0.0"),
     ],
 )
 def test_bad_options_are_one_line_errors(example, tmp_path, args, message):
@@ -96,12 +97,34 @@ def test_old_names_are_hidden_aliases():
 
 def test_a_second_study_of_the_same_name_is_refused():
     @dataclasses_frozen
-    class Settings:
+    class Settings(study.StudySettings):
         pass
 
     table1 = next(s for s in study.studies("bench") if s.name == "table1")
     with pytest.raises(ValueError, match="already registered"):
         study.register(study.Study("table1", "bench", Settings, table1.run))
+
+
+def test_settings_check_their_positive_fields_from_python_too(example):
+    """The check the command line makes is the settings' own: Python callers meet it,
+    and a study whose settings skip it is not registered."""
+    from cocd.errors import CocdError
+    from cocd.studies import hard, stability
+
+    with pytest.raises(CocdError, match=r"^--tol must be a finite number > 0, got 0$"):
+        example.Settings(tol=0)
+    with pytest.raises(CocdError, match=r"^--time-limit must be a finite number > 0, got nan$"):
+        hard.Settings(time_limit=float("nan"))
+    with pytest.raises(CocdError, match=r"^--run-budget must be a finite number > 0"):
+        stability.STUDY(run_budget=-1.0)  # dataclasses.replace makes the settings again
+    assert stability.Settings(run_budget=None).run_budget is None  # None: no budget
+
+    @dataclasses_frozen
+    class Plain:
+        tol: float = study.option(1e-8, "A tolerance.", positive=True)
+
+    with pytest.raises(TypeError, match="StudySettings"):
+        study.register(study.Study("plain", "bench", Plain, lambda cfg, *, out: None))
 
 
 def dataclasses_frozen(cls):

@@ -34,6 +34,7 @@ from cocd.outputs import writable_folder
 
 __all__ = [
     "Study",
+    "StudySettings",
     "command",
     "memory_gb",
     "option",
@@ -70,8 +71,8 @@ def option(
     positive: bool = False,
 ) -> Any:
     """A settings field with what the command line needs to know of it; ``positive``:
-    a number the command refuses, before any work, unless finite and > 0 (``None``,
-    where it is the default, stays allowed)."""
+    a number :class:`StudySettings` refuses, before any work, unless finite and > 0
+    (``None``, where it is the default, stays allowed)."""
     meta = {
         "help": help, "flag": flag, "kind": kind, "argument": argument, "aliases": aliases,
         "positive": positive,
@@ -112,6 +113,25 @@ def resume(table: str, help: str = "") -> Any:
 def memory_gb() -> Any:
     """The ``--memory-gb`` option: the memory cap of a backend's child process."""
     return option(None, "Memory cap per backend process (GiB; default 3/4 of RAM).", positive=True)
+
+
+@dataclass(frozen=True)
+class StudySettings:
+    """The base of every study's settings dataclass: on creation, from the command line
+    or from Python, a field declared ``option(..., positive=True)`` that is not finite
+    and > 0 (``None`` aside) is a :class:`~cocd.errors.CocdError` naming its flag."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if not f.metadata.get("positive") or value is None:
+                continue
+            try:
+                number = float(value)
+            except (TypeError, ValueError):
+                number = math.nan
+            if not (math.isfinite(number) and number > 0):
+                raise CocdError(f"{_flag(f)} must be a finite number > 0, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -196,8 +216,9 @@ ENTRY_POINTS = "cocd.studies"
 
 def register(study: Study) -> Study:
     """Record ``study``; a second study of the same group and name is an error."""
-    if not dataclasses.is_dataclass(study.settings):
-        raise TypeError(f"study {study.name}: settings must be a dataclass")
+    if not (dataclasses.is_dataclass(study.settings)
+            and issubclass(study.settings, StudySettings)):  # fmt: skip
+        raise TypeError(f"study {study.name}: settings must be a dataclass of StudySettings")
     key = (study.group, study.name)
     if key in _STUDIES and _STUDIES[key] is not study:
         raise ValueError(f"a {study.group} study named {study.name!r} is already registered")
@@ -358,10 +379,6 @@ def command(study: Study, *, name: str | None = None, out: Path | None = None) -
                 kind = f.metadata.get("kind")
                 if kind is not None and value is not None:
                     value = parse_list(value, kind, flag)
-                if f.metadata.get("positive") and value is not None:
-                    number = float(value)
-                    if not (math.isfinite(number) and number > 0):
-                        raise CocdError(f"{flag} must be a finite number > 0, got {value!r}")
                 values[f.name] = value
             writable_folder(where, "--out")
             from cocd.bench.report import check_readme_ours

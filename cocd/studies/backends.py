@@ -29,7 +29,7 @@ import solvers as backends
 from cocd.bench import report, solver_names, study
 from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.builders import box_3d, column_2d
 from cocd.errors import CocdError
 from cocd.problem import ConicProblem
@@ -89,7 +89,7 @@ def timed_row(
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench backends``."""
 
     solvers: str | None = study.solvers(help="Comma-separated backends (default: every one here).")

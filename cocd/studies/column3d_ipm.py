@@ -25,7 +25,7 @@ import pandas as pd
 import solvers as backends
 from cocd.bench import report, study
 from cocd.bench.runner import warmup_problem
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.errors import CocdError
 from cocd.residuals import ccp_residual
 from cocd.studies._column3d import check, column_step
@@ -41,7 +41,7 @@ IPM: dict[str, Any] = {"polish": False, "linsolve": "pardiso", "threads": 2}
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench column3d-ipm``."""
 
     sizes: tuple[int, ...] = option(

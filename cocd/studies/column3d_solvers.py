@@ -27,7 +27,7 @@ import pandas as pd
 import solvers as backends
 from cocd.bench import report, schema, study
 from cocd.bench.runner import warmup_problem
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.errors import CocdError
 from cocd.residuals import ccp_residual, coulomb_residual
 from cocd.studies._column3d import check, column_step
@@ -70,7 +70,7 @@ COLUMNS = [
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench column3d-solvers``."""
 
     n: int = option(12293, "Spheres in the column (the seed's: 122932).")

@@ -25,7 +25,6 @@ backend that solved them.
 
 from __future__ import annotations
 
-import math
 import pickle
 import tempfile
 import time
@@ -47,7 +46,7 @@ from cocd.bench.runner import (
     default_memory_gb,
     warmup_problem,
 )
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.bench.worker import Worker as ChildWorker
 from cocd.errors import CocdError, ProblemError
 from cocd.external import RECORD_KEYS, not_applicable
@@ -180,25 +179,21 @@ class _LocalForms:
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench external``."""
 
     folder: Path = study.problem_folder()
     solvers: str | None = study.solvers()
     tol: float = option(1e-8, "Tolerance asked of every solver.", positive=True)
-    coulomb_target: float = option(1e-6, "natural_map_error counted as solving Coulomb.")
+    coulomb_target: float = option(
+        1e-6, "natural_map_error counted as solving Coulomb.", positive=True
+    )
     time_limit: float = study.time_limit(60.0)
     memory_gb: float | None = study.memory_gb()
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) -> pd.DataFrame:
     """Solve every problem of ``folder`` with every backend; write the table and profiles."""
-    if not (math.isfinite(cfg.tol) and cfg.tol > 0):
-        raise CocdError(f"tol must be a finite number > 0, got {cfg.tol!r}")
-    if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):
-        raise CocdError(f"time limit must be > 0 seconds, got {cfg.time_limit!r}")
-    if not (math.isfinite(cfg.coulomb_target) and cfg.coulomb_target > 0):
-        raise CocdError(f"the Coulomb target must be > 0, got {cfg.coulomb_target!r}")
     from cocd.io import read_problem
 
     files = _files(Path(cfg.folder))

@@ -63,7 +63,7 @@ import solvers
 from cocd.bench import estimate, select_solvers, study
 from cocd.bench.report import write_meta, write_table
 from cocd.bench.runner import default_memory_gb
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.bench.worker import Worker, short
 from cocd.builders import HARD_CASES
 from cocd.errors import CocdError
@@ -399,7 +399,7 @@ def _heatmap(table: pd.DataFrame, path: Path, tol: float) -> Path:
 
 # -- the command ---------------------------------------------------------------
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench hard``."""
 
     solvers: str | None = study.solvers()
@@ -433,12 +433,6 @@ def run(
         )
     if isinstance(cfg.steps, bool) or not isinstance(cfg.steps, int) or cfg.steps < 1:
         raise CocdError(f"steps must be an integer >= 1, got {cfg.steps!r}")
-    if not (isinstance(cfg.tol, (int, float)) and math.isfinite(cfg.tol) and cfg.tol > 0):
-        raise CocdError(f"tol must be a finite number > 0, got {cfg.tol!r}")
-    if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):
-        raise CocdError(f"time limit must be > 0 seconds, got {cfg.time_limit!r}")
-    if cfg.memory_gb is not None and not (cfg.memory_gb > 0):
-        raise CocdError(f"memory cap must be > 0 GiB, got {cfg.memory_gb!r}")
     memory = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
 
     scenes = {name: HARD_CASES[name]() for name in names}

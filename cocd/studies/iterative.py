@@ -21,7 +21,7 @@ import pandas as pd
 import solvers as backends
 from cocd.bench import report, solver_names, study
 from cocd.bench.runner import Worker, default_memory_gb
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.studies.backends import REFERENCE_TOL, one_step, timed_row
 
 __all__ = ["COLUMNS", "STUDY", "Settings", "run"]
@@ -44,7 +44,7 @@ COLUMNS = [
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench iterative``."""
 
     solvers: str = study.solvers("pgs,apgd,nscd", help="Iterative backends (comma-separated).")

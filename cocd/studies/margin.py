@@ -26,7 +26,7 @@ import pandas as pd
 
 import cocd
 from cocd.bench import report, study
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.errors import CocdError
 
 __all__ = ["COLUMNS", "DEFAULT", "STUDY", "Settings", "rows_for", "run", "summary_lines"]
@@ -51,7 +51,7 @@ DEFAULT = "default (0.5 r + skin 2, redo)"
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench margin``."""
 
     n3d: int = option(600, "Spheres in the 3D column.")

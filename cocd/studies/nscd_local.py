@@ -14,7 +14,6 @@ Quote the ratio of the two times from one run.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +25,7 @@ import pandas as pd
 import solvers as backends
 from cocd.bench import report, schema, study
 from cocd.bench.states import StepSequence, record_steps
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.builders import box_3d, column_2d
 from cocd.errors import CocdError
 from cocd.problem import ConicProblem
@@ -57,7 +56,7 @@ COLUMNS = [
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench nscd-local``."""
 
     n2d: int = option(400, "Discs in the 2D column.")
@@ -70,9 +69,6 @@ def _check(cfg: Settings) -> None:
     for name, value in (("n2d", cfg.n2d), ("n3d", cfg.n3d)):
         if int(value) != value or value < 2:
             raise CocdError(f"--{name} must be an integer >= 2, got {value!r}")
-    for name, number in (("tol", cfg.tol), ("time-limit", cfg.time_limit)):
-        if not (math.isfinite(number) and number > 0):
-            raise CocdError(f"--{name} must be a finite number > 0, got {number!r}")
 
 
 def _case(dim: int, n: int, progress: Any) -> StepSequence:

@@ -40,7 +40,7 @@ from cocd import peers
 from cocd.bench import estimate, select_solvers, solver_names, study
 from cocd.bench.results import Results
 from cocd.bench.runner import default_memory_gb
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.errors import CocdError
 from cocd.studies._peers_report import write_report
 from cocd.studies.external import FileSolver, _files, _usable
@@ -84,7 +84,7 @@ LOCAL_OPTIONS = {"criterion": "natural_map"}
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench peers``."""
 
     folder: Path = study.problem_folder()
@@ -118,14 +118,10 @@ def _check(cfg: Settings) -> list[float]:
     tols = [float(t) for t in cfg.tols]
     if not tols or not all(math.isfinite(t) and t > 0 for t in tols):
         raise CocdError(f"--tols must be finite numbers > 0, got {list(cfg.tols)!r}")
-    if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):
-        raise CocdError(f"--time-limit must be > 0 seconds, got {cfg.time_limit!r}")
     if cfg.peer_max_iter < 1:
         raise CocdError(f"--peer-max-iter must be >= 1, got {cfg.peer_max_iter}")
     if not (math.isfinite(cfg.target_floor) and cfg.target_floor >= 0):
         raise CocdError(f"--target-floor must be a number >= 0, got {cfg.target_floor!r}")
-    if cfg.memory_gb is not None and not cfg.memory_gb > 0:
-        raise CocdError(f"--memory-gb must be > 0, got {cfg.memory_gb!r}")
     return list(dict.fromkeys(tols))
 
 

@@ -77,7 +77,7 @@ from cocd.bench.report import throttled, write_meta, write_table
 from cocd.bench.results import Results
 from cocd.bench.runner import ROW_COLUMNS, Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, record_steps
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.builders import box_3d, column_2d
 from cocd.errors import CocdError
 from cocd.problem import ConicProblem
@@ -162,7 +162,7 @@ def with_cold_runs_as_warm(rows: pd.DataFrame, warm_capable: set[str]) -> pd.Dat
 
 # -- the command --------------------------------------------------------------
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench precision``."""
 
     solvers: str | None = study.solvers()
@@ -186,7 +186,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
     DataFrame
         The rows of ``precision.csv``.
     """
-    tol_list = _check(cfg.tols, cfg.n2d, cfg.n3d, cfg.time_limit, cfg.memory_gb)
+    tol_list = _check(cfg.tols, cfg.n2d, cfg.n3d)
     cases = _cases(cfg.n2d, cfg.n3d)
     chosen = {case.label: select_solvers(cfg.solvers, case.dim) for case in cases}
     if not any(chosen.values()):
@@ -313,9 +313,7 @@ def _sgm_by_problems(
     return table[["problems", *[c for c in table.columns if c != "problems"]]]
 
 
-def _check(
-    tols: Sequence[float], n2d: int, n3d: int, time_limit: float, memory_gb: float | None
-) -> list[float]:
+def _check(tols: Sequence[float], n2d: int, n3d: int) -> list[float]:
     try:
         values = [float(t) for t in tols]
     except (TypeError, ValueError):
@@ -330,10 +328,6 @@ def _check(
             raise CocdError(f"{name} must be an integer >= 0 (0 skips it), got {n!r}")
     if n2d == 0 and n3d == 0:
         raise CocdError("n2d and n3d are both 0: nothing to run")
-    if not (math.isfinite(time_limit) and time_limit > 0.0):
-        raise CocdError(f"time_limit must be > 0 seconds, got {time_limit!r}")
-    if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0.0):
-        raise CocdError(f"memory_gb must be > 0, got {memory_gb!r}")
     # Loosest first: a sweep stops at the first time-out, and tighter
     # tolerances would only take longer.
     return sorted(set(values), reverse=True)

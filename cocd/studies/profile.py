@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import cProfile
 import io
-import math
 import pstats
 import re
 import time
@@ -27,7 +26,7 @@ import pandas as pd
 import solvers as backends
 from cocd.bench import report, solver_names, study
 from cocd.bench.states import record_steps
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.builders import column_2d
 from cocd.contacts import detect_contacts
 from cocd.errors import CocdError
@@ -48,7 +47,7 @@ EXTRAS = ("times", "factorisations", "linsolve", "system_nnz", "factor_nnz")
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench profile``."""
 
     n: int = option(8308, "Discs in the 2D column.")
@@ -64,8 +63,6 @@ def _check(cfg: Settings) -> None:
     solver_names([cfg.solver, cfg.trajectory])  # unknown names fail here
     if int(cfg.n) != cfg.n or cfg.n < 2:
         raise CocdError(f"--n must be an integer >= 2, got {cfg.n!r}")
-    if not (math.isfinite(cfg.tol) and cfg.tol > 0):
-        raise CocdError(f"--tol must be a finite number > 0, got {cfg.tol!r}")
     if not 0 <= cfg.step < STEPS:
         raise CocdError(f"--step must be 0 to {STEPS - 1}, got {cfg.step}")
     if cfg.top < 1:

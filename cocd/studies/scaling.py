@@ -46,7 +46,7 @@ from cocd.bench.report import write_meta, write_table
 from cocd.bench.results import Results
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import record_steps
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.builders import column_2d, column_collapse, jammed_box, static_box
 from cocd.contacts import detect_contacts
 from cocd.errors import CocdError
@@ -127,7 +127,7 @@ def _problems_3d(packing: str, n: int, steps: int, progress: Callable[[str], Non
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench scaling``."""
 
     solvers: str | None = study.solvers()
@@ -178,8 +178,6 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], None] = print) ->
         raise CocdError("--n3d-box sizes the box packing, which --packings leaves out")
     if cfg.steps < 1:
         raise CocdError(f"steps must be >= 1, got {cfg.steps}")
-    if not (math.isfinite(cfg.time_limit) and cfg.time_limit > 0):
-        raise CocdError(f"time limit must be > 0 seconds, got {cfg.time_limit!r}")
     if any(n < 1 for n in [*cfg.n2d, *cfg.n3d, *(cfg.n3d_box or [])]) or not (
         cfg.n2d or cfg.n3d or cfg.table1 is not None
     ):

@@ -24,7 +24,7 @@ import pandas as pd
 
 import cocd
 from cocd.bench import report, study
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.errors import CocdError
 from cocd.studies.table1 import CHANNEL_WIDTH, MU_3D, SEED_ROWS
 
@@ -35,7 +35,7 @@ FACTORS = [0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5]
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench seed-contacts``."""
 
     n2d: int = option(8308, "Discs in the 2D column.")

@@ -40,7 +40,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from cocd.bench import estimate, select_solvers, study
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.bench.worker import Worker
 from cocd.builders import static_box
 from cocd.errors import CocdError
@@ -107,7 +107,7 @@ PROGRESS_S = 30.0
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench stability``."""
 
     solvers: str | None = study.solvers()
@@ -119,12 +119,14 @@ class Settings:
     )
     n: int = option(1000, "Spheres in the box.")
     dim: int = option(3, "2 or 3.")
-    t_end: float = option(5.0, "Duration in units of sqrt(H/g).")
-    dt: float = option(1e-2, "Time step (s).")
-    threshold: float = option(1e-6, "At rest while Ek / (Ek + Ep) stays below this.")
+    t_end: float = option(5.0, "Duration in units of sqrt(H/g).", positive=True)
+    dt: float = option(1e-2, "Time step (s).", positive=True)
+    threshold: float = option(1e-6, "At rest while Ek / (Ek + Ep) stays below this.", positive=True)
     time_limit: float = study.time_limit(600.0)
     run_budget: float | None = option(
-        None, "Wall seconds per (solver, eps) run; a run that spends them stops, not at rest."
+        None,
+        "Wall seconds per (solver, eps) run; a run that spends them stops, not at rest.",
+        positive=True,
     )
 
 
@@ -157,11 +159,7 @@ def run(
         (:class:`~cocd.errors.SolverNotFound`), or no named solver handles
         ``dim``.
     """
-    eps_values = _check(
-        cfg.tols, cfg.n, cfg.dim, cfg.t_end, cfg.dt, cfg.threshold, cfg.time_limit, grace
-    )
-    if cfg.run_budget is not None and not (cfg.run_budget > 0.0):
-        raise CocdError(f"run_budget must be > 0 (or None for no budget), got {cfg.run_budget!r}")
+    eps_values = _check(cfg.tols, cfg.n, cfg.dim, cfg.threshold, grace)
     budget = math.inf if cfg.run_budget is None else float(cfg.run_budget)
     names = select_solvers(cfg.solvers, cfg.dim)
     if not names:
@@ -422,10 +420,7 @@ def _check(
     tols: Sequence[float],
     n: int,
     dim: int,
-    t_end: float,
-    dt: float,
     threshold: float,
-    time_limit: float | None,
     grace: float,
 ) -> list[float]:
     """Validate the arguments; the tolerances as floats."""
@@ -442,13 +437,8 @@ def _check(
     bad = [e for e in eps_values if not (math.isfinite(e) and e > 0.0)]
     if bad:
         raise CocdError(f"every eps must be finite and > 0, got {bad}")
-    for name, value in (("t_end", t_end), ("dt", dt), ("threshold", threshold)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
-            raise CocdError(f"{name} must be a finite number > 0, got {value!r}")
     if threshold >= 1.0:  # Ek / (Ek + Ep) never reaches 1: every run would count as at rest
         raise CocdError(f"threshold is a share of the energy, below 1, got {threshold!r}")
-    if time_limit is not None and not (time_limit > 0.0):
-        raise CocdError(f"time_limit must be > 0 (or None for no limit), got {time_limit!r}")
     if not (grace >= 0.0):
         raise CocdError(f"grace must be >= 0, got {grace!r}")
     return eps_values
@@ -481,7 +471,7 @@ class SeedSettings(Settings):
     )
     n: int = option(300, "Grains in the box.")
     time_limit: float = study.time_limit(30.0)
-    run_budget: float | None = option(60.0, "Wall seconds per (solver, eps) run.")
+    run_budget: float | None = option(60.0, "Wall seconds per (solver, eps) run.", positive=True)
 
 
 #: The old command ``cocd validate stability``, hidden: the same study with its defaults.

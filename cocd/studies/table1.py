@@ -49,7 +49,7 @@ from cocd.bench.report import throttled
 from cocd.bench.results import Results
 from cocd.bench.runner import Worker, default_memory_gb, warmup_problem
 from cocd.bench.states import StepSequence, cache_path, record_steps
-from cocd.bench.study import option
+from cocd.bench.study import StudySettings, option
 from cocd.builders import column_2d, column_collapse
 from cocd.errors import CocdError
 from cocd.scene import Scene
@@ -114,7 +114,7 @@ _FAILED = ("error", "time_limit", "infeasible")
 
 
 @dataclass(frozen=True)
-class Settings:
+class Settings(StudySettings):
     """The options of ``cocd bench table1``."""
 
     solvers: str | None = study.solvers()
@@ -126,7 +126,7 @@ class Settings:
     memory_gb: float | None = study.memory_gb()
     resume: bool = study.resume("table1")
     row_budget: float | None = option(
-        None, "Seconds of solving after which a row stops (slow backends)."
+        None, "Seconds of solving after which a row stops (slow backends).", positive=True
     )
     trajectory_solver: str | None = option(
         None,
@@ -157,17 +157,14 @@ def run(
     Raises
     ------
     CocdError
-        For an unknown case, ``scale`` outside (0, 1], ``steps < 1``, a bad
-        time limit or memory cap, or an unknown backend.
+        For an unknown case, ``scale`` outside (0, 1], ``steps < 1`` or an unknown
+        backend (a time limit or memory cap that is not > 0 is refused by
+        :class:`Settings` itself).
     """
-    scale, steps, wanted = _check(cfg.scale, cfg.cases, cfg.steps, cfg.time_limit, cfg.memory_gb)
-    if cfg.row_budget is not None and not (math.isfinite(cfg.row_budget) and cfg.row_budget > 0):
-        raise CocdError(f"row budget must be > 0 seconds, got {cfg.row_budget!r}")
+    scale, steps, wanted = _check(cfg.scale, cfg.cases, cfg.steps)
     if cfg.scale_3d is not None and "3d" not in wanted:
         raise CocdError("--scale-3d scales the 3D case, which --cases leaves out")
-    scale_3d, _, _ = _check(
-        scale if cfg.scale_3d is None else cfg.scale_3d, cfg.cases, steps, cfg.time_limit, None
-    )
+    scale_3d, _, _ = _check(scale if cfg.scale_3d is None else cfg.scale_3d, cfg.cases, steps)
     cap = default_memory_gb() if cfg.memory_gb is None else float(cfg.memory_gb)
     done = Results(
         Path(out) / "table1.csv",
@@ -442,9 +439,7 @@ def _summarise(
 
 
 # -- helpers ------------------------------------------------------------------
-def _check(
-    scale: float, cases: Sequence[str], steps: int, time_limit: float, memory_gb: float | None
-) -> tuple[float, int, list[str]]:
+def _check(scale: float, cases: Sequence[str], steps: int) -> tuple[float, int, list[str]]:
     """Validated ``scale``, ``steps`` and cases (lower case, each once, in order)."""
     try:
         s = float(scale)
@@ -460,10 +455,6 @@ def _check(
     unknown = [c for c in wanted if c not in ("2d", "3d")]
     if unknown or not wanted:
         raise CocdError(f"cases must be among '2d' and '3d', got {list(cases)!r}")
-    if not (math.isfinite(time_limit) and time_limit > 0):
-        raise CocdError(f"time_limit must be > 0 seconds, got {time_limit!r}")
-    if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0):
-        raise CocdError(f"memory_gb must be > 0, got {memory_gb!r}")
     return s, int(steps), wanted
 
 

@@ -40,7 +40,7 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
 from cocd.bench import estimate, report
-from cocd.bench.study import Study, option
+from cocd.bench.study import Study, StudySettings, option
 from cocd.bench.study import register as study_register
 from cocd.errors import CocdError
 
@@ -967,7 +967,7 @@ def profile_figure(path: Path, series: list[CollapseSeries], labels: list[str]) 
 
 
 @dataclass(frozen=True)
-class RunSettings:
+class RunSettings(StudySettings):
     """The options every seed validation has: how its simulations are solved and resumed."""
 
     solver: str = option("ipm", "Convex backend of the COCD runs.")
