@@ -550,6 +550,9 @@ def sweep_command(
     except CocdError as exc:
         fail(exc)
         return
+    for path in summary.set_aside:
+        typer.echo(f"{path}: a cell file that could not be read, kept aside; its cell ran again",
+                   err=True)  # fmt: skip
     if summary.ran == 0:
         console.print(f"{summary.cells} cells, all finished before: nothing to do")
     console.print(

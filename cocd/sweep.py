@@ -46,7 +46,7 @@ import os
 import re
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -139,6 +139,8 @@ class SweepSummary:
     failed: int
     table: pd.DataFrame
     wall_time: float
+    #: Cell files that could not be read, renamed ``*.unreadable`` (their cells ran again).
+    set_aside: tuple[str, ...] = ()
 
 
 def load_sweep(path: str | Path) -> SweepSpec:
@@ -259,17 +261,29 @@ def _column(axis: str) -> str:
 
 
 # -- the sweep -----------------------------------------------------------------------------
-def done_cells(folder: Path) -> set[str]:
-    """Ids of the cells whose file is complete (readable)."""
-    done = set()
-    for path in folder.glob("*.parquet"):
+def done_cells(folder: Path, ids: Iterable[str]) -> tuple[set[str], list[Path]]:
+    """Of the cells ``ids``, those whose file in ``folder`` is complete (readable); and
+    the files that could not be read, each renamed ``<id>.parquet.unreadable`` (never
+    deleted) so that its cell runs again. Other files in ``folder`` are not touched."""
+    done: set[str] = set()
+    aside: list[Path] = []
+    for cell_id in ids:
+        path = folder / f"{cell_id}.parquet"
+        if not path.exists():
+            continue
         try:
             pd.read_parquet(path)
-        except Exception:  # a foreign or damaged file: the cell runs again
-            path.unlink(missing_ok=True)
+        except Exception:  # damaged, or someone else's: kept aside, the cell runs again
+            target = path.with_name(path.name + ".unreadable")
+            k = 1
+            while target.exists():
+                k += 1
+                target = path.with_name(f"{path.name}.unreadable{k}")
+            path.rename(target)
+            aside.append(target)
             continue
-        done.add(path.stem)
-    return done
+        done.add(cell_id)
+    return done, aside
 
 
 def run_sweep(
@@ -291,7 +305,7 @@ def run_sweep(
     folder = out / "cells"
     folder.mkdir(parents=True, exist_ok=True)
     cells = cells_of(spec)
-    done = done_cells(folder)
+    done, aside = done_cells(folder, [c.id for c in cells])
     todo = [c for c in cells if c.id not in done]
     say = progress or (lambda _k, _n, _line: None)
     if todo:
@@ -301,7 +315,13 @@ def run_sweep(
     table = aggregate(spec, out)
     failed = int((table["status"] != "ok").sum()) if len(table) else 0
     return SweepSummary(
-        len(cells), len(todo), len(cells) - len(todo), failed, table, time.perf_counter() - start
+        len(cells),
+        len(todo),
+        len(cells) - len(todo),
+        failed,
+        table,
+        time.perf_counter() - start,
+        tuple(str(p) for p in aside),
     )
 
 
