@@ -178,7 +178,11 @@ def run(
             highlight=False,
         )
         display = _ProgressDisplay()
-        with display:
+        import numpy as np
+
+        # Overflow and 0/0 in a step that blows up are not said as numpy warnings: the
+        # step's own checks (energy, residuals, NaN) end the run with one line saying so.
+        with display, np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             summary = run_scene(
                 config, folder, resume=resume, scene_file=text, progress=display.update,
                 source=source, scene=built, force=force,

@@ -57,6 +57,20 @@ def test_resume_needs_a_run_and_a_later_end(tmp_path):
     assert _steps(out) == 3
 
 
+@pytest.mark.unchecked_solutions  # the answer is not finite: the run must say so itself
+def test_a_run_that_blows_up_ends_in_one_line_without_numpy_warnings(tmp_path):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = _run("--dt", "1e-300", "--steps", "1", "--out", str(tmp_path / "r"))
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert lines[-1].startswith("error: step 1 (t = 1e-300 s")
+    assert "returned non-finite velocities or impulses" in lines[-1]
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], caught
+
+
 def test_contradictory_options_are_refused_before_any_work(tmp_path):
     out = tmp_path / "x"
     result = _run("--steps", "2", "--until", "0.1", "--out", str(out))
