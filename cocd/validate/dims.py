@@ -29,6 +29,7 @@ import pandas as pd
 
 from cocd.bench import estimate
 from cocd.bench.study import option
+from cocd.checks import first_repeat
 from cocd.errors import CocdError
 from cocd.validate import _common as base
 from cocd.validate._common import CollapseSeries, LargeCollapseSettings, register
@@ -258,8 +259,9 @@ def _sizes(n2d: Any, n3d: Any) -> list[tuple[int, int]]:
         raise CocdError("n2d and n3d are empty")
     for k, name in ((0, "n2d"), (1, "n3d")):
         counts = [p[k] for p in pairs]
-        if len(set(counts)) != len(counts):
-            raise CocdError(f"{name} repeats a count: {counts}")
+        again = first_repeat(counts)
+        if again is not None:
+            raise CocdError(f"{name} repeats a count: {counts[again]} in {counts}")
     pairs.sort(key=lambda p: p[1])
     twos = [p[0] for p in pairs]
     if twos != sorted(twos):
