@@ -746,6 +746,17 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
     pd.testing.assert_frame_equal(again, table)
     with np.load(kept) as data:
         assert "speed_few_flow" in data.files
+    # --kept-only tables what is measured: the second packings, asked but not made, are
+    # said and left out, and nothing runs.
+    lines.clear()
+    again = flume.STUDY(out=tmp_path, progress=lines.append, seeds=2, kept_only=True, **kwargs)
+    pd.testing.assert_frame_equal(again, table)
+    assert sorted(line for line in lines if "left out" in line) == [
+        f"slope{s}_d10mm_W4cm_L0.5m_mu0.25_s1: not measured yet, left out (--kept-only)"
+        for s in (0, 12)
+    ]
+    assert not any(": step " in line for line in lines)
+    assert not (tmp_path / "runs" / "flume" / "slope0_d10mm_W4cm_L0.5m_mu0.25_s1").exists()
 
 
 def test_flume_summary_gives_the_smallest_share_every_packing_reaches():

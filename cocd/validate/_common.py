@@ -702,6 +702,20 @@ def _way(job: CollapseJob) -> tuple[Any, ...]:
     return (job.how.solver, job.how.tol, job.params.get("dim"))
 
 
+def kept_only(
+    jobs: Sequence[CollapseJob], cases: Sequence[Any], progress: Callable[[str], Any] = print
+) -> tuple[list[CollapseJob], list[Any]]:
+    """The ``jobs`` whose measurements are kept, with their ``cases``: a table of what is
+    measured so far, with nothing run. Each job left out is said; none kept is an error."""
+    keep = [k for k, job in enumerate(jobs) if _kept(job) is not None]
+    for k, job in enumerate(jobs):
+        if k not in keep:
+            progress(f"{job.folder.name}: not measured yet, left out (--kept-only)")
+    if not keep:
+        raise CocdError("--kept-only: none of the runs asked is measured yet")
+    return [jobs[k] for k in keep], [cases[k] for k in keep]
+
+
 def _kept(job: CollapseJob) -> CollapseSeries | None:
     _, key = _run_key(job)
     return read_measured(job.folder, key, job.label)

@@ -89,6 +89,11 @@ class Settings(LargeCollapseSettings):
         0.002, "The deposit's edge: where it stands less than this above the bed (m)."
     )
     seeds: int = option(1, "Packings: the grains' radii drawn with seeds 0 .. seeds-1.")
+    kept_only: bool = option(
+        False,
+        "Table the runs of those asked that are already measured and run none (the others "
+        "are said and left out): the tables of a set of packings still being made.",
+    )
 
 
 def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> pd.DataFrame:
@@ -152,6 +157,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
                 few=tuple(FEW.values()),
             )
         )
+    if cfg.kept_only:
+        jobs, cases = base.kept_only(jobs, cases, progress)
     estimate.announce(
         "flume",
         [(job.free_grains, job.steps) for job in jobs],
