@@ -342,10 +342,11 @@ def export_vtu_command(
 
     folder = out if out is not None else run_file.parent / "vtu"
     try:
-        if out is not None and not force:
-            for name in VTU_SERIES:
-                writable_file(folder / f"{name}.pvd", "--out")
         writable_folder(folder, "--out")
+        if out is not None and not force:
+            for name in VTU_SERIES:  # the series and their frames
+                for path in (folder / f"{name}.pvd", *sorted(folder.glob(f"{name}_*.vtu"))):
+                    writable_file(path, "--out")
         paths = export_vtu(run_file, folder, every=every)
     except CocdError as exc:
         fail(exc)
@@ -403,11 +404,11 @@ def plot_command(
     ] = False,
 ) -> None:
     """Draw a figure of a run: profiles, front, energies, step statistics, the grains, a movie."""
-    from cocd.plots import plot_run
+    from cocd.plots import KINDS, plot_run, plot_target
 
     try:
-        if out is not None:
-            writable_file(out, "--out", replace=force)
+        if out is not None and kind in KINDS:  # the file written, its suffix added
+            writable_file(plot_target(run_file, kind, out), "--out", replace=force)
         path = plot_run(run_file, kind, out, frame=frame)  # says the path it wrote
     except CocdError as exc:
         fail(exc)
@@ -549,14 +550,12 @@ def sweep_command(
         folder = out if out is not None else Path("cocd-results") / "sweeps" / spec.name
         display = _SweepDisplay()
         summary = run_sweep(
-            spec, folder, workers=workers, scheduler=scheduler, progress=display.update
-        )
+            spec, folder, workers=workers, scheduler=scheduler, progress=display.update,
+            notice=lambda line: typer.echo(line, err=True),
+        )  # fmt: skip
     except CocdError as exc:
         fail(exc)
         return
-    for path in summary.set_aside:
-        typer.echo(f"{path}: a cell file that could not be read, kept aside; its cell ran again",
-                   err=True)  # fmt: skip
     if summary.ran == 0:
         console.print(f"{summary.cells} cells, all finished before: nothing to do")
     console.print(

@@ -58,12 +58,7 @@ def plot_run(
     import matplotlib.pyplot as plt
 
     run_path = Path(run_path)
-    suffix = ".gif" if kind == "movie" else ".png"
-    target = Path(out) if out is not None else run_path.with_name(f"{kind}{suffix}")
-    if kind == "movie" and target.suffix.lower() not in (".gif", ".mp4"):
-        raise CocdError(f"a movie is written as .gif or .mp4, not {target.name!r}")
-    if kind != "movie":
-        target = figure_path(target)
+    target = plot_target(run_path, kind, out)
     with RunFile(run_path) as rf:
         if kind == "movie":
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -101,6 +96,20 @@ def _snapshot(rf: RunFile, plt: Any, k: int) -> tuple[Any, Any]:
     draw_snapshot(ax, scene, fr.velocities, (fr.i, fr.j, fr.impulse[:, 0]), dt=_dt(rf))
     ax.set_title(f"{_title(rf)}\nt = {fr.time:.4g} s (step {fr.step})", fontsize=9)
     return fig, ax
+
+
+def plot_target(
+    run_path: str | os.PathLike[str], kind: str, out: str | os.PathLike[str] | None = None
+) -> Path:
+    """The file :func:`plot_run` writes: ``out`` (a figure's suffix added, a movie's
+    checked) or ``KIND.png`` (``movie.gif``) beside the run file."""
+    suffix = ".gif" if kind == "movie" else ".png"
+    target = Path(out) if out is not None else Path(run_path).with_name(f"{kind}{suffix}")
+    if kind == "movie":
+        if target.suffix.lower() not in (".gif", ".mp4"):
+            raise CocdError(f"a movie is written as .gif or .mp4, not {target.name!r}")
+        return target
+    return figure_path(target)
 
 
 def figure_path(path: str | os.PathLike[str]) -> Path:

@@ -294,8 +294,12 @@ def run_sweep(
     scheduler: str | None = None,
     client: Any = None,
     progress: Callable[[int, int, str], None] | None = None,
+    notice: Callable[[str], None] | None = None,
 ) -> SweepSummary:
     """Run the cells of ``spec`` not already in ``out/cells``; aggregate every cell.
+
+    ``notice`` is told at once of each cell file that could not be read and was kept
+    aside (also in :attr:`SweepSummary.set_aside`).
 
     ``client``: an existing ``distributed.Client`` (tests); else ``scheduler`` (an
     address) or a local cluster of ``workers`` processes (default: the cores).
@@ -306,6 +310,10 @@ def run_sweep(
     folder.mkdir(parents=True, exist_ok=True)
     cells = cells_of(spec)
     done, aside = done_cells(folder, [c.id for c in cells])
+    for path in aside:
+        (notice or print)(
+            f"{path}: a cell file that could not be read, kept aside; its cell runs again"
+        )
     todo = [c for c in cells if c.id not in done]
     say = progress or (lambda _k, _n, _line: None)
     if todo:

@@ -406,6 +406,16 @@ def test_an_output_named_on_the_command_line_is_replaced_only_with_force(tmp_pat
         result = runner.invoke(app, [*args, str(target), "--force"])
         assert result.exit_code == 0, (args, result.output)
         assert kept.read_bytes() != b"mine"
+    # The file written is the one checked: a figure's suffix added, a series' frames.
+    (mine / "bare.png").write_text("mine")
+    result = runner.invoke(app, ["plot", run_file, "energy", "--out", str(mine / "bare")])
+    assert result.output.strip() == f"error: --out {mine / 'bare.png'} exists: --force replaces it"
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    (frames / "grains_000000.vtu").write_text("mine")
+    result = runner.invoke(app, ["export", "vtu", run_file, "--out", str(frames)])
+    assert result.exit_code == 2 and "grains_000000.vtu exists" in result.output
+    assert (frames / "grains_000000.vtu").read_text() == "mine"
     # The defaults are made again without --force.
     for args in (["plot", run_file, "energy"], ["export", "vtu", run_file]):
         assert runner.invoke(app, args).exit_code == 0

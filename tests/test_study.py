@@ -118,6 +118,14 @@ def test_settings_check_their_positive_fields_from_python_too(example):
     with pytest.raises(CocdError, match=r"^--run-budget must be a finite number > 0"):
         stability.STUDY(run_budget=-1.0)  # dataclasses.replace makes the settings again
     assert stability.Settings(run_budget=None).run_budget is None  # None: no budget
+    assert stability.Settings(time_limit=None).time_limit is None  # None: no limit
+    for bad in ("1e-6", True, None):  # a string, a flag, and None where it means nothing
+        with pytest.raises(CocdError, match=r"^--tol must be a finite number > 0"):
+            hard.Settings(tol=bad)
+    from cocd.validate import nscd
+
+    with pytest.raises(CocdError, match=r"^--nscd-max-iter must be a whole number, got 0.5$"):
+        nscd.Settings(nscd_max_iter=0.5)
 
     @dataclasses_frozen
     class Plain:
@@ -139,3 +147,17 @@ def test_an_out_that_cannot_be_written_is_refused_before_any_work(tmp_path):
     result = runner.invoke(app, ["bench", "hard", "--out", str(blocker / "sub")])
     assert result.exit_code == 2 and "--out" in result.output
     assert "Traceback" not in result.output and blocker.read_text() == "mine"
+
+
+def test_a_study_module_of_another_package_that_fails_is_said_not_fatal(monkeypatch):
+    import importlib.metadata
+    from types import SimpleNamespace
+
+    def load():
+        raise TypeError("study plain: settings must be a dataclass of StudySettings")
+
+    broken = SimpleNamespace(name="plain", value="theirs.plain", load=load)
+    monkeypatch.setattr(importlib.metadata, "entry_points", lambda group: [broken])
+    with pytest.warns(UserWarning, match=r"the study module theirs.plain \(plain\) is not loaded"):
+        names = {s.name for s in study.studies("bench")}
+    assert "table1" in names

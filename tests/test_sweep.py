@@ -150,11 +150,16 @@ def test_interrupted_sweep_runs_only_the_missing_cells(tmp_path, client):
         run_cell(cell, str(tmp_path / "cells"))
     (tmp_path / "cells" / f"{cells[3].id}.parquet").write_bytes(b"truncated")
     (tmp_path / "cells" / "notes.parquet").write_bytes(b"mine")  # not a cell of this sweep
-    summary = run_sweep(spec, tmp_path, client=client)
+    notices: list[str] = []
+    summary = run_sweep(spec, tmp_path, client=client, notice=notices.append)
     assert (summary.ran, summary.skipped) == (5, 3)
-    # The unreadable cell file is kept aside, not deleted; a file of no cell is not touched.
+    # The unreadable cell file is kept aside, not deleted, and said; a file of no cell is
+    # not touched.
     aside = tmp_path / "cells" / f"{cells[3].id}.parquet.unreadable"
     assert summary.set_aside == (str(aside),) and aside.read_bytes() == b"truncated"
+    assert notices == [
+        f"{aside}: a cell file that could not be read, kept aside; its cell runs again"
+    ]
     assert (tmp_path / "cells" / "notes.parquet").read_bytes() == b"mine"
     (tmp_path / "cells" / "notes.parquet").unlink()
     _check_cells(spec, tmp_path)

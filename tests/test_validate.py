@@ -757,6 +757,8 @@ def test_flume_steeper_runs_further_and_stops_later_and_its_measures_are_the_fra
     ]
     assert not any(": step " in line for line in lines)
     assert not (tmp_path / "runs" / "flume" / "slope0_d10mm_W4cm_L0.5m_mu0.25_s1").exists()
+    with pytest.raises(CocdError, match="--kept-only tables the kept runs and --fresh makes"):
+        flume.STUDY(out=tmp_path, kept_only=True, fresh=True, **kwargs)
 
 
 def test_flume_summary_gives_the_smallest_share_every_packing_reaches():

@@ -72,7 +72,7 @@ def option(
 ) -> Any:
     """A settings field with what the command line needs to know of it; ``positive``:
     a number :class:`StudySettings` refuses, before any work, unless finite and > 0
-    (``None``, where it is the default, stays allowed)."""
+    (``None`` where the field's type admits it, meaning no limit or a default)."""
     meta = {
         "help": help, "flag": flag, "kind": kind, "argument": argument, "aliases": aliases,
         "positive": positive,
@@ -122,16 +122,25 @@ class StudySettings:
     and > 0 (``None`` aside) is a :class:`~cocd.errors.CocdError` naming its flag."""
 
     def __post_init__(self) -> None:
+        import numbers
+        import typing
+
+        hints = typing.get_type_hints(type(self))
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if not f.metadata.get("positive") or value is None:
+            if not f.metadata.get("positive"):
                 continue
-            try:
-                number = float(value)
-            except (TypeError, ValueError):
-                number = math.nan
+            if value is None and type(None) in typing.get_args(hints[f.name]):
+                continue  # the field says what None means (no limit, the default)
+            number = (
+                float(value)
+                if isinstance(value, numbers.Real) and not isinstance(value, bool)
+                else math.nan
+            )
             if not (math.isfinite(number) and number > 0):
                 raise CocdError(f"{_flag(f)} must be a finite number > 0, got {value!r}")
+            if hints[f.name] is int and number != int(number):
+                raise CocdError(f"{_flag(f)} must be a whole number, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -243,7 +252,15 @@ def studies(group: str | None = None) -> list[Study]:
             if not info.name.startswith("_"):
                 importlib.import_module(f"{package}.{info.name}")
     for entry in entry_points(group=ENTRY_POINTS):
-        entry.load()
+        try:
+            entry.load()
+        except Exception as exc:  # another package's study: said, and the rest still work
+            import warnings
+
+            warnings.warn(
+                f"the study module {entry.value} ({entry.name}) is not loaded: {exc}",
+                stacklevel=2,
+            )
     return [s for (g, _), s in _STUDIES.items() if group is None or g == group]
 
 

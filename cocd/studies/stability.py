@@ -122,7 +122,7 @@ class Settings(StudySettings):
     t_end: float = option(5.0, "Duration in units of sqrt(H/g).", positive=True)
     dt: float = option(1e-2, "Time step (s).", positive=True)
     threshold: float = option(1e-6, "At rest while Ek / (Ek + Ep) stays below this.", positive=True)
-    time_limit: float = study.time_limit(600.0)
+    time_limit: float | None = study.time_limit(600.0)  # None: no limit
     run_budget: float | None = option(
         None,
         "Wall seconds per (solver, eps) run; a run that spends them stops, not at rest.",
@@ -470,7 +470,7 @@ class SeedSettings(Settings):
         aliases=("--eps-list",),
     )
     n: int = option(300, "Grains in the box.")
-    time_limit: float = study.time_limit(30.0)
+    time_limit: float | None = study.time_limit(30.0)
     run_budget: float | None = option(60.0, "Wall seconds per (solver, eps) run.", positive=True)
 
 

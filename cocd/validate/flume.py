@@ -158,6 +158,10 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             )
         )
     if cfg.kept_only:
+        if cfg.fresh:
+            raise CocdError(
+                "--kept-only tables the kept runs and --fresh makes them again: give one"
+            )
         jobs, cases = base.kept_only(jobs, cases, progress)
     estimate.announce(
         "flume",
