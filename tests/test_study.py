@@ -133,6 +133,9 @@ def test_settings_check_their_positive_fields_from_python_too(example):
 
     with pytest.raises(TypeError, match="StudySettings"):
         study.register(study.Study("plain", "bench", Plain, lambda cfg, *, out: None))
+    # A list checks its items by its kind; "positive" on it would refuse every list.
+    with pytest.raises(TypeError, match="positive is for a number"):
+        study.option((1.0,), "Sizes.", kind="floats", positive=True)
 
 
 def dataclasses_frozen(cls):

@@ -72,7 +72,13 @@ def option(
 ) -> Any:
     """A settings field with what the command line needs to know of it; ``positive``:
     a number :class:`StudySettings` refuses, before any work, unless finite and > 0
-    (``None`` where the field's type admits it, meaning no limit or a default)."""
+    (``None`` where the field's type admits it, meaning no limit or a default); a list's
+    ``kind`` checks its own items, so the two do not go together."""
+    if positive and kind is not None:
+        raise TypeError(
+            f"option {flag or help!r}: positive is for a number; kind {kind!r} "
+            "checks a list's items"
+        )
     meta = {
         "help": help, "flag": flag, "kind": kind, "argument": argument, "aliases": aliases,
         "positive": positive,
