@@ -982,7 +982,10 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["nscd", "--solver", "nope", "--n", "10"], "unknown solver 'nope'"),
         (["runout", "--aspects", "1,2,3,4"], "at least 6 distinct aspect ratios"),
         (["runout", "--aspects", "1,1,1,1,1,1"], "at least 6 distinct aspect ratios"),
-        (["runout3d", "--aspects", "1,2,3,4,5,1e5"], "aspect ratio 100000 gives a column 0.000316 m long"),
+        (
+            ["runout3d", "--aspects", "1,2,3,4,5,1e5"],
+            "aspect ratio 100000 gives a column 0.000316 m long",
+        ),
         (["runout", "--aspects", "1e-5,1,2,3,4,5"], "m high, less than 2 diameters"),
         (["runout3d", "--side-mus", "0,-0.1"], "side_mus must be numbers >= 0"),
         (["runout3d", "--width-d", "1"], "width_d must be at least 2 diameters"),
@@ -1028,6 +1031,17 @@ def test_ensemble_gives_mean_spread_and_flag_counts_per_group():
     assert list(out.front) == [2.0, 5.0]
     assert out.front_sd[0] == pytest.approx(1.0) and math.isnan(out.front_sd[1])
     assert list(out.reached_end) == [2, 0] and out.reached_end.dtype.kind == "i"
+    assert "front_n" not in out  # counted only when asked
+
+
+def test_ensemble_counts_the_packings_that_reached_a_time_it_averages():
+    """A rest time one packing of two did not reach is averaged over the one that did,
+    and ``_n`` says so: a mean over fewer packings than ``seeds`` is never silent."""
+    table = pd.DataFrame({"slope": [0.0, 0.0, 20.0, 20.0], "t_rest": [1.0, 2.0, 3.0, math.nan]})
+    out = validate.ensemble(table, ["slope"], ["t_rest"], reached=["t_rest"])
+    assert list(out.seeds) == [2, 2]
+    assert list(out.t_rest_n) == [2, 1] and out.t_rest_n.dtype.kind == "i"
+    assert list(out.t_rest) == [1.5, 3.0] and math.isnan(out.t_rest_sd[1])
 
 
 def test_a_front_within_two_diameters_of_the_bed_end_is_cut_short():

@@ -548,16 +548,21 @@ def ensemble(
     keys: Sequence[str],
     columns: Sequence[str],
     counts: Sequence[str] = (),
+    reached: Sequence[str] = (),
 ) -> pd.DataFrame:
     """Mean and sample spread over the packings (rows sharing ``keys``): per group,
     ``seeds`` (rows), and for each of ``columns`` its mean and ``<column>_sd`` (sample
     standard deviation, NaN for one packing); for each of ``counts`` (flags), how many
-    of the group's packings have it set."""
+    of the group's packings have it set. A packing without a value (NaN: a rest time
+    not reached) is left out of the mean and spread; for each of ``reached``,
+    ``<column>_n`` says how many of the group's packings have one."""
     grouped = table.groupby(list(keys), sort=True)
     out = grouped.size().rename("seeds").to_frame()
     for column in columns:
         out[column] = grouped[column].mean()
         out[f"{column}_sd"] = grouped[column].std(ddof=1)
+        if column in reached:
+            out[f"{column}_n"] = grouped[column].count().astype(int)
     for column in counts:
         out[column] = grouped[column].sum().astype(int)
     return out.reset_index()

@@ -190,6 +190,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             "runout_over_L0",
         ],
         counts=["still_moving", "reached_end"],
+        reached=["t_f_s", *(f"t_f_{name}_s" for name in FEW)],
     )
     files = base.report.write_table(
         out,
@@ -198,7 +199,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         title="Seed 001's flume collapses: mean and spread over the packings",
         intro="Per slope, over the packings (`seeds`): mean and sample standard deviation "
         "(`_sd`, empty for one packing); `still_moving`: packings not at rest at the end "
-        "(no rest time); `reached_end`: packings whose deposit reached the bed's end.",
+        "(no rest time); `reached_end`: packings whose deposit reached the bed's end; a "
+        "rest time's `_n`: the packings that reached it, over which its mean and spread "
+        "are taken.",
     )
     trace = _trace(made, cases, L0)
     files += base.report.write_table(
