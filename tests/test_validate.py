@@ -1075,3 +1075,16 @@ def test_a_note_naming_rows_the_run_did_not_make_leaves_the_readme_but_not_the_r
     assert f"{tmp_path / 'README.md'} not rebuilt: timestep.md:" in said
     assert "0 rows match, not one" in said and f"cocd bench readme --out {tmp_path}" in said
     assert (tmp_path / "timestep.csv").exists() and (tmp_path / "README.md").read_text() == readme
+
+
+def test_a_table_with_overlaps_defines_them_once_for_every_study(tmp_path):
+    """``penetration_max`` (or ``_<scheme>``) is defined in the table's text, with its
+    unit, by the one publishing step every validation goes through; a table without it
+    is left as its study wrote it."""
+    with_overlaps = pd.DataFrame({"seed": [0], "penetration_max_cocd": [3e-3]})
+    validate.finish(tmp_path, "a", "A", with_overlaps, "Intro.", "", [], lambda _: None)
+    text = (tmp_path / "a.md").read_text()
+    assert "Intro. `penetration_max`:" in text and "in radii of the smaller" in text
+    assert "above 0.01 is taken again" in text
+    validate.finish(tmp_path, "b", "B", pd.DataFrame({"seed": [0]}), "Intro.", "", [], print)
+    assert "penetration_max" not in (tmp_path / "b.md").read_text()

@@ -43,6 +43,7 @@ from cocd.bench import estimate, report
 from cocd.bench.study import Study, StudySettings, option
 from cocd.bench.study import register as study_register
 from cocd.errors import CocdError
+from cocd.stepper import DEFAULT_PENETRATION_TOL
 
 if TYPE_CHECKING:
     from cocd.io.runfile import Frame
@@ -63,6 +64,13 @@ RUNOUT_WINDOW = 0.1
 #: Version of what :func:`measure_series` measures; kept measurements of another
 #: version are measured again from their run file.
 MEASURE_VERSION = 2
+
+#: What a table's ``penetration_max`` (or ``penetration_max_<scheme>``) column holds.
+PENETRATION_DOC = (
+    "`penetration_max`: the largest overlap of two grains (or of a grain and a wall) at "
+    "the end of a step of the run, in radii of the smaller; a step above "
+    f"{DEFAULT_PENETRATION_TOL:g} is taken again with a wider margin."
+)
 
 #: Relative tolerance when a requested time is matched to a saved frame (in steps).
 _FRAME_MATCH = 0.5
@@ -940,6 +948,11 @@ def finish(
     figures: list[Path],
     progress: Callable[[str], Any],
 ) -> None:
+    """Publish a validation's table and README section. A table with overlaps
+    (``penetration_max`` or ``penetration_max_<scheme>``) has them defined after
+    ``intro``: one definition for every study."""
+    if any(str(c).startswith("penetration_max") for c in table.columns):
+        intro = f"{intro.rstrip()} {PENETRATION_DOC}"
     files = report.publish(
         out, name, table, title=title, intro=intro, summary=summary, figures=figures
     )

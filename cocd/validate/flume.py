@@ -37,7 +37,6 @@ from numpy.typing import NDArray
 from cocd.bench import estimate
 from cocd.bench.study import option
 from cocd.errors import CocdError
-from cocd.stepper import DEFAULT_PENETRATION_TOL
 from cocd.validate import _common as base
 from cocd.validate._common import CollapseSeries, LargeCollapseSettings, register
 
@@ -247,10 +246,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "over its largest, a measure of rest that one rattler does not fail alone; "
         "`front_m`: the front at the end, from the back wall; `W_over_d`: the channel in "
         "diameters; `n_free`: free grains (pile and bed); `n_pile`: the pile's grains; "
-        "`s_per_step`: detection, set-up and solve per step; `penetration_max`: the "
-        "largest overlap of two grains (or a grain and a wall) at the end of a step, in "
-        f"radii of the smaller (a step above {DEFAULT_PENETRATION_TOL:g} is redone with a wider "
-        "margin)."
+        "`s_per_step`: detection, set-up and solve per step."
     )
     base.finish(
         out,
