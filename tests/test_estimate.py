@@ -100,5 +100,31 @@ def test_a_record_of_nothing_solved_keeps_the_same_commands_earlier_timing(tmp_p
         again = record("cocd x", 0)
         assert again["work_units"] == first["work_units"]
         assert again["elapsed_s"] == first["elapsed_s"] and again["timed"] == first["written"]
+    assert "timed_on" not in again  # the same machine
     other = record("cocd x --more", 0)
     assert other["work_units"] == 0 and "timed" not in other
+
+
+def test_a_rebuild_on_another_machine_keeps_the_timing_and_names_its_machine(tmp_path, monkeypatch):
+    """Read back on another processor, the same command's record keeps the earlier
+    time and work, and says which processor and cores they were taken on; a later
+    rebuild on a third machine still names the first."""
+    from cocd.bench import report
+
+    def record(cpu: str, solved: float) -> dict:
+        monkeypatch.setattr(estimate, "_current", {})
+        monkeypatch.setattr(report, "machine_info", lambda: {"cpu": cpu, "cores": 2})
+        estimate.announce("t", [(1000, 10)], out=tmp_path, progress=lambda _: None)
+        estimate.made(1000, solved)
+        report.write_meta(tmp_path, "t", title="T", files=[], command="cocd x")
+        return json.loads((tmp_path / "t.meta.json").read_text())
+
+    first = record("Intel", 10)
+    moved = record("AMD", 0)
+    assert moved["machine"]["cpu"] == "AMD" and moved["work_units"] == first["work_units"]
+    assert moved["elapsed_s"] == first["elapsed_s"]
+    assert moved["timed_on"] == {"cpu": "Intel", "cores": 2}
+    assert record("Other", 0)["timed_on"] == {"cpu": "Intel", "cores": 2}
+    back = record("Intel", 0)  # on the first machine again: nothing to name
+    assert back["elapsed_s"] == first["elapsed_s"] and "timed_on" not in back
+    assert record("AMD", 5)["work_units"] != first["work_units"]  # a new solve replaces it

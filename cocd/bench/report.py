@@ -185,6 +185,10 @@ def publish(
     return files
 
 
+#: What makes two machines alike for a recorded time: processor and cores.
+_MACHINE_KEYS = ("cpu", "cores")
+
+
 def write_meta(
     out: Path,
     name: str,
@@ -198,9 +202,10 @@ def write_meta(
 
     The command's time and work (:func:`cocd.bench.estimate.record`) are recorded when
     it solved something. When it solved nothing (its runs all read back, e.g. to redraw
-    a figure), the time and work of an earlier record of the same command on a like
-    machine (processor and cores) stay, with when they were taken (``timed``): the next
-    estimate's rate, and the command's cost, are the solves'.
+    a figure), the time and work of an earlier record of the same command stay, with
+    when they were taken (``timed``) and, when that was another machine, its processor
+    and cores (``timed_on``): the next estimate's rate, and the command's cost, are the
+    solves', and a rebuild elsewhere does not lose them.
     """
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.meta.json"
@@ -210,16 +215,18 @@ def write_meta(
     if timing.get("work_units") == 0:
         try:
             earlier = json.loads(path.read_text())
-            same = earlier["command"] == command and all(
-                earlier["machine"].get(key) == machine.get(key) for key in ("cpu", "cores")
-            )
-            if same and float(earlier["work_units"]) > 0:
+            if earlier["command"] == command and float(earlier["work_units"]) > 0:
                 timing = {
                     "elapsed_s": earlier["elapsed_s"],
                     "work_units": earlier["work_units"],
                     "workers": earlier.get("workers", 1),
                     "timed": earlier.get("timed", earlier.get("written")),
                 }
+                where = earlier.get("timed_on") or {
+                    key: earlier["machine"].get(key) for key in _MACHINE_KEYS
+                }
+                if any(where.get(key) != machine.get(key) for key in _MACHINE_KEYS):
+                    timing["timed_on"] = where
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass
     meta = {
