@@ -784,7 +784,9 @@ def test_flume_summary_gives_the_smallest_share_every_packing_reaches():
         table[column] = 0.5
     columns = ["t_f_s", "t_f_permil_s", "t_f_pct_s", "t_front_s", "Hf_m", "Hf_over_H0",
                "runout_m", "runout_over_L0"]  # fmt: skip
-    ensemble = base.ensemble(table, ["slope_deg"], columns, ["still_moving", "reached_end"])
+    ensemble = base.ensemble(
+        table, ["slope_deg"], columns, ["still_moving", "reached_end"], reached=columns[:3]
+    )
     text = flume._summary(
         ensemble, table, 0.004, 0.2, 0.1, 0.06, 0.02, 1.52, 0.01, 2.2, flume.Settings()
     )

@@ -496,9 +496,8 @@ def _summary(
             if moving < row["seeds"]
             else f"still moving at {until:g} s"
         )
-        runs = table[table.slope_deg == row["slope_deg"]]
         for name, share in FEW.items():  # the smallest share that every packing reaches
-            quiet = int(np.isfinite(runs[f"t_f_{name}_s"].to_numpy(dtype=float)).sum())
+            quiet = int(row[f"t_f_{name}_s_n"])
             if quiet == row["seeds"] or share == max(FEW.values()):
                 break
         few = (
