@@ -1044,6 +1044,9 @@ def test_ensemble_counts_the_packings_that_reached_a_time_it_averages():
     assert list(out.seeds) == [2, 2]
     assert list(out.t_rest_n) == [2, 1] and out.t_rest_n.dtype.kind == "i"
     assert list(out.t_rest) == [1.5, 3.0] and math.isnan(out.t_rest_sd[1])
+    # A count asked of a column not averaged would be dropped without a word: refused.
+    with pytest.raises(ValueError, match=r"\['t_stop'\].*not among the columns"):
+        validate.ensemble(table, ["slope"], ["t_rest"], reached=["t_stop"])
 
 
 def test_a_front_within_two_diameters_of_the_bed_end_is_cut_short():

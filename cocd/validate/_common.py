@@ -563,7 +563,11 @@ def ensemble(
     standard deviation, NaN for one packing); for each of ``counts`` (flags), how many
     of the group's packings have it set. A packing without a value (NaN: a rest time
     not reached) is left out of the mean and spread; for each of ``reached``,
-    ``<column>_n`` says how many of the group's packings have one."""
+    ``<column>_n`` says how many of the group's packings have one, so each of
+    ``reached`` must be one of ``columns``."""
+    stray = [name for name in reached if name not in columns]
+    if stray:
+        raise ValueError(f"ensemble: reached names {stray} that are not among the columns averaged")
     grouped = table.groupby(list(keys), sort=True)
     out = grouped.size().rename("seeds").to_frame()
     for column in columns:
