@@ -177,20 +177,13 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             for (seed, slope), s in zip(cases, made, strict=True)
         ]
     )
+    rest_times = ["t_f_s", *(f"t_f_{name}_s" for name in FEW)]  # not every packing's
     ensemble = base.ensemble(
         table,
         ["slope_deg"],
-        [
-            "t_f_s",
-            *(f"t_f_{name}_s" for name in FEW),
-            "t_front_s",
-            "Hf_m",
-            "Hf_over_H0",
-            "runout_m",
-            "runout_over_L0",
-        ],
+        [*rest_times, "t_front_s", "Hf_m", "Hf_over_H0", "runout_m", "runout_over_L0"],
         counts=["still_moving", "reached_end"],
-        reached=["t_f_s", *(f"t_f_{name}_s" for name in FEW)],
+        reached=rest_times,
     )
     files = base.report.write_table(
         out,
