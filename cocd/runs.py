@@ -23,7 +23,7 @@ import numpy as np
 from cocd.config import RunConfig, build_scene, parse_config, same_params
 from cocd.io.runfile import RunFile, RunFileError, RunWriter
 from cocd.scene import Scene
-from cocd.stepper import StepRecord
+from cocd.stepper import Stepper, StepRecord
 
 __all__ = [
     "DERIVED_FILES",
@@ -115,6 +115,7 @@ def run(
             )
         for name in (RUN_FILE, *DERIVED_FILES):
             (Path(out) / name).unlink(missing_ok=True)
+    stepper: Stepper | None = None
     if resume and path.exists():
         with RunFile(path) as old:
             _check_same(old.config, resolved, path)
@@ -131,10 +132,12 @@ def run(
     else:
         if scene is None:
             scene = build_scene(config, source)
+        stepper = config.stepper(scene)  # bad settings are refused before a run file is made
         writer = RunWriter.create(path, scene, resolved, scene_file)
         records, previous, frames, start_step = [], None, 1, 0
     try:
-        stepper = config.stepper(scene, resumed=start_step > 0)
+        if stepper is None:
+            stepper = config.stepper(scene, resumed=start_step > 0)
         stepper.restore(records, previous)
         total = config.n_steps()  # steps of the whole run, from t = 0
         begin = time.perf_counter()

@@ -267,6 +267,9 @@ class Stepper:
         self.max_iter = max_iter
         self.time_limit = time_limit
         self.solver_options = dict(solver_options or {})
+        for key in ("tol", "max_iter", "time_limit", "warm_start"):
+            if key in self.solver_options:
+                raise ProblemError(f"solver_options cannot set {key!r}, which the run sets")
         self.fclib_dir = None if fclib_dir is None else Path(fclib_dir)
         self.fclib_steps = None if fclib_steps is None else frozenset(int(k) for k in fclib_steps)
         if self.fclib_dir is not None:

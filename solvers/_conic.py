@@ -14,6 +14,8 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from cocd.errors import ProblemError
 from cocd.problem import PrimalConicForm
 from solvers.refine import FIRST_TOL_FACTOR, SMALLEST_NATIVE_TOL, Attempt, solve_to_target
@@ -25,7 +27,15 @@ if TYPE_CHECKING:
     from cocd.problem import ConicProblem, DualConicForm
     from solvers.base import Request, Solution
 
-__all__ = ["FORMS", "answer", "conic_form", "no_free_setting", "prepare", "to_target"]
+__all__ = [
+    "FORMS",
+    "answer",
+    "check_setting",
+    "conic_form",
+    "no_free_setting",
+    "prepare",
+    "to_target",
+]
 
 FORMS = ("primal", "dual")
 
@@ -68,6 +78,21 @@ def answer(
 def no_free_setting(name: str, key: str, follows: str, settings: str) -> ProblemError:
     """The error for a setting ``key`` that ``name`` does not leave to the user."""
     return ProblemError(f"{name} has no free setting {key!r} ({follows}); {settings}")
+
+
+def check_setting(name: str, key: str, value: Any, kind: type) -> None:
+    """A one-line :class:`ProblemError` unless ``value`` is a ``kind`` (``bool``,
+    ``int``, ``float``, where an int will do, or ``str``) for ``name``'s setting ``key``."""
+    if kind is bool:
+        ok = isinstance(value, (bool, np.bool_))
+    elif kind in (int, float):
+        whole = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+        ok = whole or (kind is float and isinstance(value, (float, np.floating)))
+    else:
+        ok = isinstance(value, kind)
+    if not ok:
+        what = {bool: "True or False", int: "an integer", float: "a number"}.get(kind, "a word")
+        raise ProblemError(f"{name}: setting {key} must be {what}, got {value!r}")
 
 
 def to_target(

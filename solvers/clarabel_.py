@@ -52,7 +52,8 @@ import clarabel
 import numpy as np
 import scipy.sparse as sp
 
-from solvers._conic import answer, no_free_setting, prepare, to_target
+from cocd.errors import ProblemError
+from solvers._conic import answer, check_setting, no_free_setting, prepare, to_target
 from solvers.base import Request, Solution, Status
 from solvers.refine import Attempt
 
@@ -108,7 +109,13 @@ def _settings(request: Request, options: dict[str, Any]) -> Any:
             raise no_free_setting(
                 "clarabel", key, "tolerances follow tol", "see clarabel.DefaultSettings"
             )
-        setattr(settings, key, value)
+        kind = type(getattr(settings, key))
+        if kind in (bool, int, float, str):
+            check_setting("clarabel", key, value, kind)
+        try:
+            setattr(settings, key, value)
+        except (TypeError, ValueError) as exc:
+            raise ProblemError(f"clarabel: setting {key}={value!r}: {exc}") from None
     settings.verbose = request.verbose
     if request.max_iter is not None:
         settings.max_iter = request.max_iter

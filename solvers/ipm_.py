@@ -323,7 +323,9 @@ def _solve(problem: ConicProblem, request: Request, linsolve: str, options: Any)
     tol, time_limit, verbose = request.tol, request.time_limit, request.verbose
     threads = _threads(options) if linsolve == "pardiso" else None  # PARDISO's alone
     polish = bool(options.get("polish", True))
-    correctors = int(options.get("correctors", DEFAULT_CORRECTORS))
+    correctors = options.get("correctors", DEFAULT_CORRECTORS)
+    if isinstance(correctors, bool) or not isinstance(correctors, int) or correctors < 0:
+        raise ProblemError(f"ipm: correctors must be an integer >= 0, got {correctors!r}")
     cap = DEFAULT_MAX_ITER if request.max_iter is None else int(request.max_iter)
     start = time.perf_counter()
     times = {

@@ -19,6 +19,8 @@ import warnings
 from importlib.metadata import entry_points
 from typing import Any
 
+import numpy as np
+
 from cocd.errors import ProblemError, SolverNotFound
 from solvers.base import SolverInfo
 
@@ -321,6 +323,9 @@ def _split(name: str, infos: dict[str, SolverInfo]) -> tuple[str, dict[str, Any]
             options: dict[str, Any] = {}
             for item in rest:
                 key, _, text = item.partition("=")
+                if text.lower() in ("true", "false"):  # as TOML and the shell write them
+                    options[key] = text.lower() == "true"
+                    continue
                 try:
                     options[key] = ast.literal_eval(text)
                 except (ValueError, SyntaxError):
@@ -355,6 +360,9 @@ def _ensure_loaded() -> None:
 #: The request's fields that a solver name may carry (``"pgs:max_iter=3"``).
 REQUEST_FIELDS = ("tol", "max_iter", "time_limit", "verbose")
 
+#: Options that are True or False for every backend that takes them.
+FLAGS = ("verbose", "polish", "symmetric", "newton")
+
 
 def requested(
     solver: str, request: dict[str, Any], options: dict[str, Any], *extra: str
@@ -373,10 +381,12 @@ def requested(
     for key in (*REQUEST_FIELDS, *extra):
         if key in name_options:
             request[key] = name_options.pop(key)
-    if "verbose" in request:
-        request["verbose"] = bool(request["verbose"])
-    _check_request(request)
     merged = {**info.options, **options, **name_options}
+    for key, value in (*request.items(), *merged.items()):
+        if key in FLAGS and not isinstance(value, (bool, np.bool_)):
+            raise ProblemError(f"{info.name}: {key} must be True or False, got {value!r}")
+    request["verbose"] = bool(request.get("verbose", False))
+    _check_request(request)
     if info.accepts is not None:
         unknown = sorted(set(merged) - set(info.options) - set(info.accepts))
         if unknown:

@@ -81,7 +81,7 @@ import scs
 from numpy.typing import NDArray
 
 from cocd.cones import project_coulomb
-from solvers._conic import answer, no_free_setting, prepare, to_target
+from solvers._conic import answer, check_setting, no_free_setting, prepare, to_target
 from solvers.base import FloatArray, Request, Solution, Status
 from solvers.refine import Attempt
 
@@ -109,16 +109,17 @@ FIRST_EPS_FACTOR = 1.0
 SMALLEST_EPS = 1e-12
 DEFAULT_MAX_ITERS = 20_000
 
-_FREE = {
-    "normalize",
-    "scale",
-    "adaptive_scale",
-    "rho_x",
-    "alpha",
-    "acceleration_lookback",
-    "acceleration_interval",
-    "eps_infeas",
-    "linear_solver",
+#: SCS's settings left to the user, with the type each takes.
+_FREE: dict[str, type] = {
+    "normalize": bool,
+    "scale": float,
+    "adaptive_scale": bool,
+    "rho_x": float,
+    "alpha": float,
+    "acceleration_lookback": int,
+    "acceleration_interval": int,
+    "eps_infeas": float,
+    "linear_solver": str,
 }
 
 Start = tuple[FloatArray, FloatArray, FloatArray]
@@ -203,6 +204,7 @@ def _settings(request: Request, options: dict[str, Any]) -> dict[str, Any]:
                 "eps, max_iters and time_limit_secs follow tol, max_iter and time_limit",
                 f"free settings: {', '.join(sorted(_FREE))}",
             )
+        check_setting("scs", key, options[key], _FREE[key])
     settings = dict(options)
     settings["verbose"] = bool(request.verbose)
     max_iter = request.max_iter

@@ -566,3 +566,18 @@ def test_a_run_still_writing_its_first_frame_is_not_taken_for_an_empty_one(tmp_p
     finally:
         child.kill()
         child.wait()
+
+
+def test_bad_solver_options_are_refused_before_a_run_file_is_made(tmp_path):
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        'builder = "stack"\n[params]\nn_grains = 3\n[run]\nsolver = "ipm"\n'
+        "solver_options = {max_iter = -5}\n"
+    )
+    out = tmp_path / "out"
+    result = _run(str(scene), "--steps", "2", "--out", str(out))
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines()[-1] == (
+        "error: solver_options cannot set 'max_iter', which the run sets"
+    )
+    assert not (out / "run.h5").exists()

@@ -202,3 +202,39 @@ def test_an_option_in_the_name_wins_over_the_same_argument(name):
     assert sol.iterations == 1 and sol.status == "max_iter"
     with pytest.raises(ProblemError, match="a warm start cannot be given in a solver name"):
         solvers.solve(problem, f"{name}:warm_start=1")
+
+
+def test_true_and_false_in_a_name_are_read_as_toml_and_the_shell_write_them():
+    base, options = registry._split("nscd:symmetric=false:newton=True", registry.registered())
+    assert base == "nscd" and options == {"symmetric": False, "newton": True}
+    problem = _stack_problem()
+    # The lower-case word is the same option as Python's: the same sweeps, not a flipped one.
+    lower = solvers.solve(problem, "nscd:symmetric=false", tol=1e-10)
+    upper = solvers.solve(problem, "nscd:symmetric=False", tol=1e-10)
+    assert lower.iterations == upper.iterations
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("ipm:polish=maybe", "ipm: polish must be True or False, got 'maybe'"),
+        ("nscd:symmetric=1", "nscd: symmetric must be True or False, got 1"),
+        ("pgs:verbose=yes", "pgs: verbose must be True or False, got 'yes'"),
+        ("ipm:correctors=-1", "ipm: correctors must be an integer >= 0, got -1"),
+        ("ipm:correctors=1.5", "ipm: correctors must be an integer >= 0, got 1.5"),
+        ("clarabel:max_step_fraction=abc", "clarabel: setting max_step_fraction must be a number"),
+        ("clarabel:max_threads=1.5", "clarabel: setting max_threads must be an integer"),
+        ("clarabel:presolve_enable=2", "clarabel: setting presolve_enable must be True or False"),
+        ("scs:alpha=abc", "scs: setting alpha must be a number, got 'abc'"),
+        ("scs:normalize=0", "scs: setting normalize must be True or False, got 0"),
+    ],
+)
+def test_an_option_of_the_wrong_type_is_a_one_line_error(name, message):
+    with pytest.raises(ProblemError, match=f"^{message}"):
+        solvers.solve(_stack_problem(), name)
+
+
+@pytest.mark.parametrize("key", ["tol", "max_iter", "time_limit", "warm_start"])
+def test_solver_options_cannot_set_what_the_run_sets(key):
+    with pytest.raises(ProblemError, match=f"solver_options cannot set '{key}'"):
+        Stepper(stack(2, dim=2), 1e-3, solver_options={key: 1})
