@@ -106,10 +106,21 @@ def plot_target(
     suffix = ".gif" if kind == "movie" else ".png"
     target = Path(out) if out is not None else Path(run_path).with_name(f"{kind}{suffix}")
     if kind == "movie":
+        not_a_folder(target, "movie.gif")
         if target.suffix.lower() not in (".gif", ".mp4"):
             raise CocdError(f"a movie is written as .gif or .mp4, not {target.name!r}")
         return target
     return figure_path(target)
+
+
+def not_a_folder(path: Path, example: str = "figure.png") -> Path:
+    """``path``, unless it names a folder (an existing one, ``.`` or ``..``): then a
+    one-line :class:`CocdError`, as a figure or movie is a file."""
+    if path.name in ("", ".", "..") or path.is_dir():
+        raise CocdError(
+            f"{str(path) or '.'} is a folder: give the file to write, e.g. {path / example}"
+        )
+    return path
 
 
 def figure_path(path: str | os.PathLike[str]) -> Path:
@@ -118,7 +129,7 @@ def figure_path(path: str | os.PathLike[str]) -> Path:
     cannot write is refused, naming those it can."""
     from matplotlib.backend_bases import FigureCanvasBase
 
-    path = Path(path)
+    path = not_a_folder(Path(path))
     if not path.suffix:
         return path.with_name(path.name + ".png")
     kinds = FigureCanvasBase.get_supported_filetypes()

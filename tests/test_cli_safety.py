@@ -431,12 +431,19 @@ def test_file_system_refusals_are_one_line_errors(tmp_path):
     assert _run("--steps", "2", "--out", str(out)).exit_code == 0
     run_file = str(out / "run.h5")
     (tmp_path / "afile").write_text("x")
+    scene = tmp_path / "scene.toml"
+    scene.write_text('builder = "stack"\n[params]\nn_grains = 3\n')
     for args, message in (
         (["export", "vtu", run_file, "--out", str(tmp_path / "afile")], "a file is in the way"),
         (["plot", str(out), "energy"], f"{out} is a folder, not a run file"),
         (["export", "fclib", run_file, "--out", run_file, "--force"], "is the run file itself"),
         (["plot", run_file, "energy", "--out", str(tmp_path / "p.txt")], "as '.txt'"),
         (["bench", "readme", "--out", str(tmp_path / "afile")], "is a file"),
+        (["plot", run_file, "energy", "--out", str(tmp_path)], f"{tmp_path} is a folder"),
+        (["plot", run_file, "energy", "--out", "."], "error: . is a folder"),
+        (["plot", run_file, "energy", "--out", ""], "error: . is a folder"),
+        (["plot", run_file, "movie", "--out", ".."], "error: .. is a folder"),
+        (["show", str(scene), "--out", str(out)], f"{out} is a folder"),
     ):  # fmt: skip
         result = runner.invoke(app, args)
         assert result.exit_code == 2, (args, result.output)
