@@ -131,7 +131,7 @@ def local_residuals(
 ) -> tuple[float, float]:
     """``ccp_residual`` and ``coulomb_residual`` (:mod:`cocd.residuals`) of impulses ``r``
     on the local problem's own ``W``: ``w = u = W r + q``, ``rho_a = m / trace(W_aa)``
-    (0 for a block without a positive trace), normalised by ``|rho q|``.
+    (positive: :class:`LocalProblem` refuses a zero block), normalised by ``|rho q|``.
 
     When ``W`` is symmetric these are the residuals on :attr:`LocalProblem.conic`,
     whose Delassus operator is ``W``; they need no factor of ``W``, so they judge a
@@ -140,11 +140,12 @@ def local_residuals(
     nc, m = problem.nc, problem.dim
     if nc == 0:
         return 0.0, 0.0
+    problem.check_scales()
     p = np.asarray(r, dtype=np.float64).reshape(nc, m)
     w = problem.velocity(p) if u is None else np.asarray(u, dtype=np.float64)
     w = w.reshape(nc, m)
     trace = problem.W.diagonal().reshape(nc, m).sum(axis=1)
-    rho = np.where(trace > 0.0, m / np.where(trace > 0.0, trace, 1.0), 0.0)[:, None]
+    rho = (m / trace)[:, None]
     den = float(np.linalg.norm(rho * problem.q.reshape(nc, m)))
     # Both natural maps in one projection: w, then De Saxcé's ŵ = w + (mu |w_T|, 0).
     x = np.concatenate([p - rho * w, p - rho * w])
@@ -174,6 +175,7 @@ def local_data(problem: LocalProblem) -> LocalData:
     held = _LOCAL_DATA.get(problem)
     if held is not None and held[0] == key:
         return held[1]
+    problem.check_scales()
     data = LocalData.of(problem)
     _ = data.arrays  # the block CSR of W, built here: set-up, not solve
     _LOCAL_DATA[problem] = (key, data)

@@ -211,6 +211,27 @@ class LocalProblem(_Described):
         """This problem (a local problem is its own condensed form)."""
         return self
 
+    def check_scales(self) -> None:
+        """A one-line :class:`ProblemError` if a contact's block of ``W`` has a negative
+        diagonal entry or is zero: a Delassus operator has neither, and the residuals'
+        scale ``rho_a = m / trace(W_aa)`` of such a contact would judge any answer exact.
+        Checked before a solve and by the residuals, not on reading (a file may be
+        inspected whatever it holds)."""
+        where = self._where
+        diagonal = self.W.diagonal()
+        bad = np.flatnonzero(diagonal < 0.0)
+        if bad.size:
+            raise ProblemError(
+                f"{where}: W[{bad[0]}, {bad[0]}] is {diagonal[bad[0]]:g}: a Delassus operator "
+                "has no negative diagonal entry"
+            )
+        still = np.flatnonzero(diagonal.reshape(self.nc, self.dim).sum(axis=1) == 0.0)
+        if still.size:
+            raise ProblemError(
+                f"{where}: contact {still[0]}'s block of W is zero ({still.size} such contacts): "
+                "its impulse moves nothing, so no answer can be judged"
+            )
+
     def symmetry_error(self) -> float:
         """``max |W - W'| / max |W|`` (0 for an exactly symmetric W)."""
         scale = float(abs(self.W).max()) if self.W.nnz else 0.0
@@ -221,6 +242,7 @@ class LocalProblem(_Described):
 
     @cached_property
     def _factor(self) -> tuple[sp.csr_matrix, float]:
+        self.check_scales()
         return _delassus_factor(self.W, self._where)
 
     @property
