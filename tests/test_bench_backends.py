@@ -3,6 +3,7 @@ iterative ones cold and warm."""
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 from typer.testing import CliRunner
 
@@ -42,10 +43,20 @@ def test_a_warm_start_saves_iterations(tmp_path, monkeypatch):
 
 
 def test_bad_sizes_and_names_are_one_line_errors(tmp_path):
+    import scipy.sparse as sp
+
+    from cocd.io import write_problem
+    from cocd.io.problems import LocalProblem
+
+    (tmp_path / "problems").mkdir()
+    one = LocalProblem(sp.eye(3), np.array([-1.0, 0.0, 0.0]), np.array([0.3]), 3)
+    write_problem(tmp_path / "problems" / "one.hdf5", one)
     for args, message in (
         (["backends", "--n2d", "1"], "n2d must be an integer >= 2"),
         (["backends", "--solvers", "nope"], "unknown solver 'nope'"),
         (["iterative", "--solvers", "nope"], "unknown solver 'nope'"),
+        (["backends", "--solvers", ","], "no solver is named in ','"),
+        (["external", str(tmp_path / "problems"), "--solvers", " , "], "no solver is named"),
     ):
         result = runner.invoke(app, ["bench", *args, "--out", str(tmp_path)])
         assert result.exit_code == 2, (args, result.output)

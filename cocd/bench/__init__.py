@@ -37,6 +37,11 @@ def solver_names(names: str | list[str] | tuple[str, ...] | None) -> list[str]:
         return []
     chosen = names.split(",") if isinstance(names, str) else list(names)
     chosen = [n.strip() for n in chosen if n.strip()]
+    if not chosen:
+        raise SolverNotFound(
+            f"no solver is named in {names!r}; available solvers: "
+            f"{', '.join(solvers.available())}"
+        )
     for name in chosen:
         solvers.resolve(name)
     return chosen
@@ -50,13 +55,10 @@ def select_solvers(names: str | list[str] | None, dim: int) -> list[str]:
     cones on a 3D frictional problem) are left out. With no names, the
     available ones of :data:`DEFAULT_SOLVERS`.
     """
-    if names is None or names == "" or names == []:
+    chosen = solver_names(names)
+    explicit = bool(chosen)
+    if not explicit:
         chosen = [n for n in DEFAULT_SOLVERS if n in set(solvers.available())]
-        explicit = False
-    else:
-        chosen = [n.strip() for n in names.split(",")] if isinstance(names, str) else list(names)
-        chosen = [n for n in chosen if n]
-        explicit = True
     out = []
     for name in chosen:
         info, options = solvers.resolve(name)
