@@ -1007,6 +1007,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["flume", "--slopes", "0,95"], "slopes must be in [0, 90)"),
         (["flume", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
         (["flume", "--until", "0.015"], "is not a whole number of steps"),
+        (["erodible", "--until", "0.0015"], "until 0.0015 s is not a whole number of steps"),
         (["flume", "--diameter", "-0.004"], "diameter must be a positive number, got -0.004"),
         (["flume", "--length", "0.001"], "length 0.001 m is less than a grain"),
         (["flume", "--rest-speed", "0"], "rest_speed must be a positive number, got 0"),

@@ -926,6 +926,15 @@ def positives(**settings: float) -> list[float]:
     return [float(v) for v in settings.values()]
 
 
+def whole_steps(until: float, dt: float) -> int:
+    """The steps of ``dt`` to ``until``; a one-line error unless they are a whole number
+    (a run would otherwise end past the time asked for)."""
+    steps = round(until / dt)
+    if abs(steps * dt - until) > 1e-6 * dt:
+        raise CocdError(f"until {until:g} s is not a whole number of steps of {dt:g} s")
+    return steps
+
+
 def pyplot() -> Any:
     import matplotlib
 

@@ -60,6 +60,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         raise CocdError(f"layer thicknesses must be >= 0 diameters, got {layers!r}")
     layers = sorted(set(layers))
     (until, dt, bed_length) = base.positives(until=cfg.until, dt=cfg.dt, bed_length=cfg.bed_length)
+    steps = base.whole_steps(until, dt)
     out = Path(out)
     from cocd.builders import column_collapse
 
@@ -89,7 +90,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     # 3 m bed nearly triples a 2000-disc column.
     estimate.announce(
         "erodible",
-        [(job.free_grains, round(until / dt)) for job in jobs],
+        [(job.free_grains, steps) for job in jobs],
         out=out,
         progress=progress,
         workers=cfg.workers,

@@ -118,9 +118,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     if not (math.isfinite(cfg.side_mu) and cfg.side_mu >= 0.0):
         raise CocdError(f"side_mu must be a number >= 0, got {cfg.side_mu!r}")
     seeds = base.positive_int("seeds", cfg.seeds)
-    steps = round(until / dt)
-    if abs(steps * dt - until) > 1e-6 * dt:
-        raise CocdError(f"until {until:g} s is not a whole number of steps of {dt:g} s")
+    base.whole_steps(until, dt)
     out = Path(out)
     cases = [(seed, slope) for seed in range(seeds) for slope in slopes]
     jobs = []
