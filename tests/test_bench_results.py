@@ -107,6 +107,20 @@ def test_cocd_bench_upgrade_renames_columns_and_says_so(tmp_path):
     assert again.exit_code == 0 and "already uses the current names" in again.output
 
 
+def test_cocd_bench_upgrade_keeps_values_and_writes_nothing_when_a_file_fails(tmp_path):
+    out = tmp_path / "results"
+    out.mkdir()
+    # An integer column with a blank: pandas would read it as floats (13 -> 13.0).
+    (out / "a.csv").write_text("solver,eps,iterations\nipm,1e-08,13\napgd,1e-08,\n")
+    (out / "b.csv").write_text('solver,eps\n"unclosed,1\n')  # cannot be read
+    result = runner.invoke(app, ["bench", "upgrade", str(out)])
+    assert result.exit_code == 2 and "cannot upgrade" in result.output and "b.csv" in result.output
+    assert (out / "a.csv").read_text() == "solver,eps,iterations\nipm,1e-08,13\napgd,1e-08,\n"
+    (out / "b.csv").unlink()
+    assert runner.invoke(app, ["bench", "upgrade", str(out)]).exit_code == 0
+    assert (out / "a.csv").read_text() == "solver,tol,iterations\nipm,1e-08,13\napgd,1e-08,\n"
+
+
 def test_cocd_bench_upgrade_of_no_folder_is_one_line(tmp_path):
     result = runner.invoke(app, ["bench", "upgrade", str(tmp_path / "none")])
     assert result.exit_code == 2

@@ -36,16 +36,19 @@ def upgrade_folder(folder: Path, *, dry_run: bool = False) -> dict[Path, dict[st
     if not folder.is_dir():
         raise CocdError(f"{folder} is not a folder of results")
     done: dict[Path, dict[str, str]] = {}
+    texts: dict[Path, str] = {}
     for path in sorted(folder.rglob("*")):
         if not path.is_file() or any(p.startswith(".") for p in path.relative_to(folder).parts):
             continue
         try:
-            renamed = _upgrade_file(path, dry_run)
+            renamed, text = _upgraded(path)
         except (OSError, ValueError, pd.errors.ParserError) as exc:
             raise CocdError(f"cannot upgrade {path}: {exc}") from None
         if renamed:
-            done[path] = renamed
-    if not dry_run:
+            done[path], texts[path] = renamed, text
+    if not dry_run:  # every file was read before any is written
+        for path, text in texts.items():
+            _write_text(path, text)
         for meta_path in sorted({m for p in done for m in p.parent.glob("*.meta.json")}):
             _record(meta_path, done)
     return done
@@ -89,28 +92,25 @@ def upgrade_markdown(text: str) -> tuple[str, dict[str, str]]:
 
 
 # -- helpers -------------------------------------------------------------------
-def _upgrade_file(path: Path, dry_run: bool) -> dict[str, str]:
+def _upgraded(path: Path) -> tuple[dict[str, str], str]:
+    """What would be renamed in ``path`` and its text after (empty when nothing)."""
     name = path.name
     if name.endswith(".csv"):
-        table = pd.read_csv(path, keep_default_na=False, na_values=[""])
+        # As text: the values are written back as they were (an integer column with
+        # a blank is not made floats).
+        table = pd.read_csv(path, dtype=str, keep_default_na=False)
         new = schema.upgrade(table)
         renamed = {o: n for o, n in zip(table.columns, new.columns, strict=True) if o != n}
-        if renamed and not dry_run:
-            _write_text(path, new.to_csv(index=False))
-        return renamed
+        return renamed, new.to_csv(index=False) if renamed else ""
     if name.endswith(".meta.json"):
         meta = json.loads(path.read_text())
         text, renamed = upgrade_markdown(str(meta.get("summary", "")))
-        if renamed and not dry_run:
-            meta["summary"] = text
-            _write_text(path, json.dumps(meta, indent=2) + "\n")
-        return renamed
+        meta["summary"] = text
+        return renamed, json.dumps(meta, indent=2) + "\n"
     if name.endswith(".md"):
         text, renamed = upgrade_markdown(path.read_text())
-        if renamed and not dry_run:
-            _write_text(path, text)
-        return renamed
-    return {}
+        return renamed, text
+    return {}, ""
 
 
 def _record(meta_path: Path, done: dict[Path, dict[str, str]]) -> None:
