@@ -1008,6 +1008,9 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["flume", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
         (["flume", "--until", "0.015"], "is not a whole number of steps"),
         (["erodible", "--until", "0.0015"], "until 0.0015 s is not a whole number of steps"),
+        (["flume", "--solver", "nope"], "unknown solver 'nope'"),
+        (["dims", "--fallback", "clarabel,nope"], "unknown solver 'nope'"),
+        (["flume", "--workers", "0"], "workers must be an integer >= 1, got 0"),
         (["flume", "--diameter", "-0.004"], "diameter must be a positive number, got -0.004"),
         (["flume", "--length", "0.001"], "length 0.001 m is less than a grain"),
         (["flume", "--rest-speed", "0"], "rest_speed must be a positive number, got 0"),
@@ -1017,6 +1020,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         assert result.exit_code == 2, (args, result.output)
         assert message in result.output, (args, result.output)
         assert "Traceback" not in result.output
+    assert not list(tmp_path.rglob("run.h5"))  # refused before any run was begun
 
 
 def test_ensemble_gives_mean_spread_and_flag_counts_per_group():

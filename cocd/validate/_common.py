@@ -1022,6 +1022,14 @@ class RunSettings(StudySettings):
     )
     fresh: bool = option(False, "Start the runs over instead of resuming them.")
 
+    def __post_init__(self) -> None:
+        """An unknown or unusable backend is refused here, before any scene is built."""
+        super().__post_init__()
+        import solvers
+
+        for name in (self.solver, *self.fallback):
+            solvers.get(name)
+
 
 @dataclass(frozen=True)
 class CollapseSettings(RunSettings):
@@ -1032,6 +1040,10 @@ class CollapseSettings(RunSettings):
         "Runs simulated at once, each in its own process on one thread (1: one after "
         "another, with the libraries' own threads).",
     )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive_int("workers", self.workers)  # before any scene is built
 
 
 @dataclass(frozen=True)
