@@ -192,7 +192,7 @@ def export_step(
         target = Path(run_path).parent / f"step_{k:06d}.hdf5" if out is None else Path(out)
         if target.exists() and os.path.samefile(target, run_path):
             raise CocdError(f"--out {target} is the run file itself: give another file")
-        writable_file(target, "--out", replace=force)
+        writable_file(target, "--out" if out is not None else "the output", replace=force)
         config = parse_config(
             rf.config, f"{run_path} (its configuration is not one this cocd runs)", params=False
         )

@@ -445,6 +445,7 @@ def test_a_step_exported_from_a_run_file_is_the_step_the_run_took(tmp_path):
     # Its file is not replaced without --force; steps outside the run are named.
     again = runner.invoke(app, ["export", "fclib", run_file, "--step", "15"])
     assert again.exit_code == 2 and "--force replaces it" in again.output
+    assert "error: the output " in again.output and "--out" not in again.output  # none given
     forced = runner.invoke(app, ["export", "fclib", run_file, "--step", "15", "--force"])
     assert forced.exit_code == 0, forced.output
     for step in ("0", "21"):
