@@ -29,7 +29,8 @@ app = typer.Typer(
     rich_markup_mode=None,
     add_completion=False,
     no_args_is_help=False,
-    help="Granular media with hard Coulomb contact, one convex conic problem per step.",
+    help="Granular media with hard Coulomb contact, one convex conic problem per step. "
+    "With no command, `cocd` runs the default scene into ./cocd-runs/default, as `cocd run` does.",
 )
 app.add_typer(bench_app, name="bench")
 app.add_typer(validate_app, name="validate")
