@@ -92,10 +92,15 @@ def describe(problem: ExternalProblem) -> dict[str, Any]:
     out["W_symmetry_error"] = local.symmetry_error()
     if isinstance(problem, LocalProblem):
         try:
-            out["delassus_shift"] = problem.shift
+            problem.check_scales()
         except ProblemError as exc:
-            names = ", ".join(local_backends())
-            out["solvable"] = f"local forms only ({names}): {_reason(exc)}"
+            out["solvable"] = f"no: {_reason(exc)}"
+        else:
+            try:
+                out["delassus_shift"] = problem.shift
+            except ProblemError as exc:
+                names = ", ".join(local_backends())
+                out["solvable"] = f"local forms only ({names}): {_reason(exc)}"
     if problem.title:
         out["title"] = problem.title
     if problem.description:
@@ -215,6 +220,8 @@ def conic_of(problem: ExternalProblem, solver: str) -> ConicProblem:
     """``problem.conic`` for the backend ``solver``; a local problem without a factor
     ``H H' = W`` (``W`` not symmetric) raises a one-line
     :class:`~cocd.errors.ProblemError` that names the backend."""
+    if isinstance(problem, LocalProblem):
+        problem.check_scales()  # no backend solves it: said as it is
     try:
         return problem.conic
     except ProblemError as exc:

@@ -214,8 +214,16 @@ class Stepper:
         if isinstance(fallback, str):
             fallback = [name for name in fallback.split(",") if name]
         self.fallback = tuple(fallback)
-        for name in (solver, *self.fallback):
-            info = solvers.get(name)
+        self.solver_options = dict(solver_options or {})
+        for key in ("problem", "solver", "tol", "warm_start", "max_iter", "time_limit"):
+            if key in self.solver_options:
+                raise ProblemError(
+                    f"solver_options cannot set {key!r}, which the stepper gives the backend"
+                )
+        for k, name in enumerate((solver, *self.fallback)):
+            # Unknown options and options of the wrong kind fail here too (the options go
+            # to the first backend only).
+            info, _, _ = solvers.requested(name, {}, {} if k else self.solver_options)
             if scene.dim not in info.dims:
                 raise ProblemError(
                     f"solver {name!r} handles dimensions {info.dims}, not a {scene.dim}D scene"
@@ -266,10 +274,6 @@ class Stepper:
         self.warm_start = warm_start and self.info.warm_start
         self.max_iter = max_iter
         self.time_limit = time_limit
-        self.solver_options = dict(solver_options or {})
-        for key in ("tol", "max_iter", "time_limit", "warm_start"):
-            if key in self.solver_options:
-                raise ProblemError(f"solver_options cannot set {key!r}, which the run sets")
         self.fclib_dir = None if fclib_dir is None else Path(fclib_dir)
         self.fclib_steps = None if fclib_steps is None else frozenset(int(k) for k in fclib_steps)
         if self.fclib_dir is not None:

@@ -67,6 +67,7 @@ import scipy.sparse as sp
 from cocd.cones import project_coulomb
 from cocd.errors import ProblemError
 from cocd.residuals import ccp_residual
+from solvers._conic import check_setting
 from solvers._ipm_kernels import (
     cone_blocks,
     fill_linear,
@@ -324,8 +325,9 @@ def _solve(problem: ConicProblem, request: Request, linsolve: str, options: Any)
     threads = _threads(options) if linsolve == "pardiso" else None  # PARDISO's alone
     polish = bool(options.get("polish", True))
     correctors = options.get("correctors", DEFAULT_CORRECTORS)
-    if isinstance(correctors, bool) or not isinstance(correctors, int) or correctors < 0:
-        raise ProblemError(f"ipm: correctors must be an integer >= 0, got {correctors!r}")
+    check_setting("ipm", "correctors", correctors, int)
+    if correctors < 0:
+        raise ProblemError(f"ipm: setting correctors must be an integer >= 0, got {correctors!r}")
     cap = DEFAULT_MAX_ITER if request.max_iter is None else int(request.max_iter)
     start = time.perf_counter()
     times = {

@@ -382,11 +382,6 @@ def requested(
         if key in name_options:
             request[key] = name_options.pop(key)
     merged = {**info.options, **options, **name_options}
-    for key, value in (*request.items(), *merged.items()):
-        if key in FLAGS and not isinstance(value, (bool, np.bool_)):
-            raise ProblemError(f"{info.name}: {key} must be True or False, got {value!r}")
-    request["verbose"] = bool(request.get("verbose", False))
-    _check_request(request)
     if info.accepts is not None:
         unknown = sorted(set(merged) - set(info.options) - set(info.accepts))
         if unknown:
@@ -394,6 +389,11 @@ def requested(
                 f"{info.name} has no option {unknown[0]!r}; its options are "
                 f"{', '.join(info.accepts) or 'none'}"
             )
+    for key, value in (*request.items(), *merged.items()):
+        if key in FLAGS and not isinstance(value, (bool, np.bool_)):
+            raise ProblemError(f"{info.name}: {key} must be True or False, got {value!r}")
+    request["verbose"] = bool(request.get("verbose", False))
+    _check_request(request)
     return info, request, merged
 
 

@@ -119,7 +119,7 @@ _FREE: dict[str, type] = {
     "acceleration_lookback": int,
     "acceleration_interval": int,
     "eps_infeas": float,
-    "linear_solver": str,
+    "linear_solver": object,  # a name or scs.LinearSolver: SCS checks it
 }
 
 Start = tuple[FloatArray, FloatArray, FloatArray]

@@ -585,6 +585,6 @@ def test_bad_solver_options_are_refused_before_a_run_file_is_made(tmp_path):
     result = _run(str(scene), "--steps", "2", "--out", str(out))
     assert result.exit_code == 2
     assert result.output.strip().splitlines()[-1] == (
-        "error: solver_options cannot set 'max_iter', which the run sets"
+        "error: solver_options cannot set 'max_iter', which the stepper gives the backend"
     )
     assert not (out / "run.h5").exists()

@@ -145,20 +145,25 @@ def test_non_symmetric_local_file_is_refused_by_the_backends_with_a_reason():
     ("diagonal", "message"),
     [
         ([-1.0, 1.0, 1.0], r"W\[0, 0\] is -1: a Delassus operator has no negative diagonal"),
-        ([0.0, 0.0, 0.0], "contact 0's block of W is zero"),
+        ([0.0, 0.0, 0.0], "contact 0's block of W has a zero diagonal"),
     ],
 )
 def test_a_local_problem_whose_w_cannot_be_a_delassus_operator_is_refused(diagonal, message):
     # Such a W would scale its contacts' residuals by 0: any answer would look exact.
     # It is read (and can be inspected), but not solved or judged.
-    from cocd.external import local_data, local_residuals
+    from cocd.external import conic_of, describe, local_data, local_residuals
 
     problem = LocalProblem(sp.diags(diagonal), np.array([-1.0, 0.0, 0.0]), np.array([0.3]), 3)
-    for use in (lambda: problem.conic, lambda: local_data(problem)):
+    uses = (
+        lambda: problem.conic,
+        lambda: conic_of(problem, "clarabel"),  # not sent to the local forms: they refuse it too
+        lambda: local_data(problem),
+        lambda: local_residuals(problem, np.zeros(3)),
+    )
+    for use in uses:
         with pytest.raises(ProblemError, match=message):
             use()
-    with pytest.raises(ProblemError, match=message):
-        local_residuals(problem, np.zeros(3))
+    assert describe(problem)["solvable"].startswith("no: ")
 
 
 # -- conversions ------------------------------------------------------------------

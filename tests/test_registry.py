@@ -220,8 +220,8 @@ def test_true_and_false_in_a_name_are_read_as_toml_and_the_shell_write_them():
         ("ipm:polish=maybe", "ipm: polish must be True or False, got 'maybe'"),
         ("nscd:symmetric=1", "nscd: symmetric must be True or False, got 1"),
         ("pgs:verbose=yes", "pgs: verbose must be True or False, got 'yes'"),
-        ("ipm:correctors=-1", "ipm: correctors must be an integer >= 0, got -1"),
-        ("ipm:correctors=1.5", "ipm: correctors must be an integer >= 0, got 1.5"),
+        ("ipm:correctors=-1", "ipm: setting correctors must be an integer >= 0, got -1"),
+        ("ipm:correctors=1.5", "ipm: setting correctors must be an integer, got 1.5"),
         ("clarabel:max_step_fraction=abc", "clarabel: setting max_step_fraction must be a number"),
         ("clarabel:max_threads=1.5", "clarabel: setting max_threads must be an integer"),
         ("clarabel:presolve_enable=2", "clarabel: setting presolve_enable must be True or False"),
@@ -234,7 +234,22 @@ def test_an_option_of_the_wrong_type_is_a_one_line_error(name, message):
         solvers.solve(_stack_problem(), name)
 
 
-@pytest.mark.parametrize("key", ["tol", "max_iter", "time_limit", "warm_start"])
-def test_solver_options_cannot_set_what_the_run_sets(key):
-    with pytest.raises(ProblemError, match=f"solver_options cannot set '{key}'"):
+@pytest.mark.parametrize(
+    "key", ["problem", "solver", "tol", "max_iter", "time_limit", "warm_start"]
+)
+def test_solver_options_cannot_set_what_the_stepper_gives_the_backend(key):
+    with pytest.raises(ProblemError, match=f"solver_options cannot set '{key}', which the stepper"):
         Stepper(stack(2, dim=2), 1e-3, solver_options={key: 1})
+
+
+@pytest.mark.parametrize(
+    ("solver", "options", "message"),
+    [
+        ("ipm", {"polish": "maybe"}, "ipm: polish must be True or False"),
+        ("ipm:polish=maybe", {}, "ipm: polish must be True or False"),
+        ("pgs", {"rho": 1.0}, "pgs has no option 'rho'"),
+    ],
+)
+def test_a_stepper_refuses_bad_options_before_any_step(solver, options, message):
+    with pytest.raises(ProblemError, match=message):
+        Stepper(stack(2, dim=2), 1e-3, solver=solver, solver_options=options)

@@ -1008,9 +1008,6 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         (["flume", "--side-mu", "-0.1"], "side_mu must be a number >= 0"),
         (["flume", "--until", "0.015"], "is not a whole number of steps"),
         (["erodible", "--until", "0.0015"], "until 0.0015 s is not a whole number of steps"),
-        (["flume", "--solver", "nope"], "unknown solver 'nope'"),
-        (["dims", "--fallback", "clarabel,nope"], "unknown solver 'nope'"),
-        (["flume", "--workers", "0"], "workers must be an integer >= 1, got 0"),
         (["flume", "--diameter", "-0.004"], "diameter must be a positive number, got -0.004"),
         (["flume", "--length", "0.001"], "length 0.001 m is less than a grain"),
         (["flume", "--rest-speed", "0"], "rest_speed must be a positive number, got 0"),
@@ -1020,7 +1017,21 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         assert result.exit_code == 2, (args, result.output)
         assert message in result.output, (args, result.output)
         assert "Traceback" not in result.output
-    assert not list(tmp_path.rglob("run.h5"))  # refused before any run was begun
+
+
+def test_backends_and_workers_are_refused_before_any_work(tmp_path):
+    """Refused when the settings are made: no time estimate, no scene, no run file."""
+    for args, message in (
+        (["flume", "--solver", "nope"], "unknown solver 'nope'"),
+        (["dims", "--fallback", "clarabel,nope"], "unknown solver 'nope'"),
+        (["flume", "--solver", "apgd:polish=maybe"], "apgd: polish must be True or False"),
+        (["flume", "--workers", "0"], "workers must be an integer >= 1, got 0"),
+    ):
+        result = runner.invoke(app, ["validate", *args, "--out", str(tmp_path)])
+        assert result.exit_code == 2, (args, result.output)
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], (args, result.output)
+    assert not list(tmp_path.rglob("run.h5"))
 
 
 def test_ensemble_gives_mean_spread_and_flag_counts_per_group():

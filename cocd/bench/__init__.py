@@ -39,8 +39,7 @@ def solver_names(names: str | list[str] | tuple[str, ...] | None) -> list[str]:
     chosen = [n.strip() for n in chosen if n.strip()]
     if not chosen:
         raise SolverNotFound(
-            f"no solver is named in {names!r}; available solvers: "
-            f"{', '.join(solvers.available())}"
+            f"no solver is named in {names!r}; available solvers: {', '.join(solvers.available())}"
         )
     for name in chosen:
         solvers.resolve(name)
@@ -56,16 +55,11 @@ def select_solvers(names: str | list[str] | None, dim: int) -> list[str]:
     available ones of :data:`DEFAULT_SOLVERS`.
     """
     chosen = solver_names(names)
-    explicit = bool(chosen)
-    if not explicit:
+    if not chosen:  # named ones are usable here, else solver_names raised
         chosen = [n for n in DEFAULT_SOLVERS if n in set(solvers.available())]
     out = []
     for name in chosen:
         info, options = solvers.resolve(name)
-        if explicit:
-            reason = info.unavailable_reason()
-            if reason is not None:
-                raise SolverNotFound(f"solver {name!r} is not usable here: {reason}")
         if dim not in info.dims:
             continue
         if info.linear_cones_only and dim == 3 and "facets" not in options:

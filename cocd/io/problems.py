@@ -213,23 +213,24 @@ class LocalProblem(_Described):
 
     def check_scales(self) -> None:
         """A one-line :class:`ProblemError` if a contact's block of ``W`` has a negative
-        diagonal entry or is zero: a Delassus operator has neither, and the residuals'
+        diagonal entry or a zero diagonal: a Delassus operator has neither, and the residuals'
         scale ``rho_a = m / trace(W_aa)`` of such a contact would judge any answer exact.
         Checked before a solve and by the residuals, not on reading (a file may be
         inspected whatever it holds)."""
         where = self._where
         diagonal = self.W.diagonal()
-        bad = np.flatnonzero(diagonal < 0.0)
+        scale = float(np.abs(diagonal).max()) if diagonal.size else 0.0
+        bad = np.flatnonzero(diagonal < -1e-12 * scale)  # not the rounding of a printed 0
         if bad.size:
             raise ProblemError(
                 f"{where}: W[{bad[0]}, {bad[0]}] is {diagonal[bad[0]]:g}: a Delassus operator "
                 "has no negative diagonal entry"
             )
-        still = np.flatnonzero(diagonal.reshape(self.nc, self.dim).sum(axis=1) == 0.0)
+        still = np.flatnonzero(diagonal.reshape(self.nc, self.dim).sum(axis=1) <= 0.0)
         if still.size:
             raise ProblemError(
-                f"{where}: contact {still[0]}'s block of W is zero ({still.size} such contacts): "
-                "its impulse moves nothing, so no answer can be judged"
+                f"{where}: contact {still[0]}'s block of W has a zero diagonal ({still.size} such "
+                "contacts): its residuals have no scale, so no answer can be judged"
             )
 
     def symmetry_error(self) -> float:

@@ -1028,7 +1028,7 @@ class RunSettings(StudySettings):
         import solvers
 
         for name in (self.solver, *self.fallback):
-            solvers.get(name)
+            solvers.requested(name, {}, {})  # its options in the name too
 
 
 @dataclass(frozen=True)
