@@ -351,8 +351,6 @@ def nscd_local(
     _other_options("nscd", options)
     from solvers.nscd_ import DEFAULT_MAX_SWEEPS
 
-    if not isinstance(newton, (bool, np.bool_)):
-        raise ProblemError(f"nscd: newton must be True or False, got {newton!r}")
     method = _Method("nscd", NSCD, True, _LOCAL[local], relax, 1.0, bool(symmetric))
     if newton:
         sol = _with_newton(data, request, criterion, method, DEFAULT_MAX_SWEEPS)

@@ -108,9 +108,7 @@ def nscd_solve_problem(problem: ConicProblem, request: Request, **options: Any) 
     check_every = options.get("check_every")
     if check_every is not None and (not isinstance(check_every, int) or check_every < 1):
         raise ProblemError(f"nscd: check_every must be a positive integer, got {check_every!r}")
-    newton = options.get("newton", False)
-    if not isinstance(newton, (bool, np.bool_)):
-        raise ProblemError(f"nscd: newton must be True or False, got {newton!r}")
+    newton = options.get("newton", False)  # True or False: solvers.registry.FLAGS
     if newton:
         return _with_newton(problem, request, symmetric, relax, options)
     local_name = options.get("local", "exact")
