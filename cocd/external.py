@@ -145,12 +145,10 @@ def local_residuals(
     nc, m = problem.nc, problem.dim
     if nc == 0:
         return 0.0, 0.0
-    problem.check_scales()
+    rho = (m / problem.check_scales())[:, None]
     p = np.asarray(r, dtype=np.float64).reshape(nc, m)
     w = problem.velocity(p) if u is None else np.asarray(u, dtype=np.float64)
     w = w.reshape(nc, m)
-    trace = problem.W.diagonal().reshape(nc, m).sum(axis=1)
-    rho = (m / trace)[:, None]
     den = float(np.linalg.norm(rho * problem.q.reshape(nc, m)))
     # Both natural maps in one projection: w, then De Saxcé's ŵ = w + (mu |w_T|, 0).
     x = np.concatenate([p - rho * w, p - rho * w])

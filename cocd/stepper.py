@@ -210,7 +210,6 @@ class Stepper:
             raise ProblemError(f"time step dt must be finite and > 0, got {dt}")
         if not (np.isfinite(tol) and tol > 0.0):
             raise ProblemError(f"tol must be finite and > 0, got {tol}")
-        self.info = solvers.get(solver)  # unknown names fail here, before any work
         if isinstance(fallback, str):
             fallback = [name for name in fallback.split(",") if name]
         self.fallback = tuple(fallback)
@@ -224,6 +223,8 @@ class Stepper:
             # Unknown options and options of the wrong kind fail here too (the options go
             # to the first backend only).
             info, _, _ = solvers.requested(name, {}, {} if k else self.solver_options)
+            if k == 0:
+                self.info = info  # unknown names fail here, before any work
             if scene.dim not in info.dims:
                 raise ProblemError(
                     f"solver {name!r} handles dimensions {info.dims}, not a {scene.dim}D scene"

@@ -211,12 +211,12 @@ class LocalProblem(_Described):
         """This problem (a local problem is its own condensed form)."""
         return self
 
-    def check_scales(self) -> None:
-        """A one-line :class:`ProblemError` if a contact's block of ``W`` has a negative
-        diagonal entry or a zero diagonal: a Delassus operator has neither, and the residuals'
-        scale ``rho_a = m / trace(W_aa)`` of such a contact would judge any answer exact.
-        Checked before a solve and by the residuals, not on reading (a file may be
-        inspected whatever it holds)."""
+    def check_scales(self) -> FloatArray:
+        """``trace(W_aa)`` of every contact, the residuals' scales ``rho_a = m / trace``;
+        a one-line :class:`ProblemError` if a contact's block of ``W`` has a negative
+        diagonal entry or a zero diagonal: a Delassus operator has neither, and such a
+        contact's scale would judge any answer exact. Checked before a solve and by the
+        residuals, not on reading (a file may be inspected whatever it holds)."""
         where = self._where
         diagonal = self.W.diagonal()
         scale = float(np.abs(diagonal).max()) if diagonal.size else 0.0
@@ -226,12 +226,14 @@ class LocalProblem(_Described):
                 f"{where}: W[{bad[0]}, {bad[0]}] is {diagonal[bad[0]]:g}: a Delassus operator "
                 "has no negative diagonal entry"
             )
-        still = np.flatnonzero(diagonal.reshape(self.nc, self.dim).sum(axis=1) <= 0.0)
+        trace = diagonal.reshape(self.nc, self.dim).sum(axis=1)
+        still = np.flatnonzero(trace <= 0.0)
         if still.size:
             raise ProblemError(
                 f"{where}: contact {still[0]}'s block of W has a zero diagonal ({still.size} such "
                 "contacts): its residuals have no scale, so no answer can be judged"
             )
+        return trace
 
     def symmetry_error(self) -> float:
         """``max |W - W'| / max |W|`` (0 for an exactly symmetric W)."""
