@@ -1109,3 +1109,20 @@ def test_a_table_with_overlaps_defines_them_once_for_every_study(tmp_path):
     assert "above 0.01 is taken again" in text
     validate.finish(tmp_path, "b", "B", pd.DataFrame({"seed": [0]}), "Intro.", "", [], print)
     assert "penetration_max" not in (tmp_path / "b.md").read_text()
+
+
+def test_flume_front_settles_within_a_bin_whatever_the_bins_reading():
+    """A front that flickers by one bin, read as 4.05 mm or 3.99 mm for 4 mm bins, has
+    settled; two bins away it has not; a front that never has a value never settles."""
+    from cocd.validate.flume import front_settled
+
+    times = np.arange(8) * 0.1
+    d = 0.004
+    final = 0.090
+    one_bin = np.array([0.070, 0.086, final + 0.00405, final, final - 0.00399, final, final, final])
+    assert front_settled(times, one_bin, d) == pytest.approx(0.1)
+    two_bins = one_bin.copy()
+    two_bins[5] = final + 0.00805
+    assert front_settled(times, two_bins, d) == pytest.approx(0.6)
+    assert front_settled(times, np.full(8, final), d) == 0.0
+    assert np.isnan(front_settled(times, np.full(8, np.nan), d))

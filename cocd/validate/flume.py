@@ -50,6 +50,12 @@ SEED_SLOPES = (0.0, 5.0, 10.0, 15.0, 20.0)
 #: Bins of the bed downstream of the final front that give its surface at the end.
 FAR_BINS = 5
 
+#: The front has settled once it stays within one bin (a diameter) of its final place.
+#: It moves a bin at a time, by a diameter give or take the grains' places (3.99 or
+#: 4.05 mm for 4 mm grains), so the test allows half a bin more: a one-bin flicker is
+#: always in, two bins always out.
+FRONT_BINS = 1.5
+
 #: Rest times robust to rattlers: from when no grain of the flow is faster than the rest
 #: speed but at most this share of the pile's grain count (0.1 % and, for the criterion's
 #: sensitivity, 1 %); the grains counted are the flow's, the bed under it included.
@@ -232,9 +238,11 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "`t_f_all_s`: the same over every free "
         "grain, the bed far ahead included (seed 001's 'whole domain'); `speed_end`, "
         "`speed_end_all`: the largest speeds at the end (m/s); `t_front_s`: from when "
-        "the front (:func:`cocd.measure.surface_front`) stays within one diameter of its "
-        "final place; `ke_end_over_peak`: the grains' kinetic energy after the last step "
-        "over its largest, a measure of rest that one rattler does not fail alone; "
+        "the front (:func:`cocd.measure.surface_front`) stays within one bin (a diameter) "
+        "of its final place (less than 1.5 bins from it, so that a one-bin flicker counts "
+        "whatever its exact reading); `ke_end_over_peak`: the grains' kinetic energy "
+        "after the last step over its largest, a measure of rest that one rattler does not "
+        "fail alone; "
         "`front_m`: the front at the end, from the back wall; `W_over_d`: the channel in "
         "diameters; `n_free`: free grains (pile and bed); `n_pile`: the pile's grains; "
         "`s_per_step`: detection, set-up and solve per step."
@@ -250,6 +258,19 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         progress,
     )
     return table
+
+
+def front_settled(times: FloatArray, front: FloatArray, bin_width: float) -> float:
+    """From when ``front`` stays within one bin of its last value (NaN if it has none).
+
+    The front moves a bin at a time, by ``bin_width`` give or take the grains' places,
+    so a reading less than :data:`FRONT_BINS` bins away counts as the same place or the
+    next one: a one-bin flicker is settled, a two-bin one is not.
+    """
+    if not np.isfinite(front[-1]):
+        return np.nan
+    unsettled = np.nonzero(~(np.abs(front - front[-1]) < FRONT_BINS * bin_width))[0]
+    return float(times[unsettled[-1] + 1]) if unsettled.size else float(times[0])
 
 
 def _row(
@@ -285,11 +306,7 @@ def _row(
     for j, name in enumerate(FEW):
         speeds = None if s.speed_few_flow is None else s.speed_few_flow[:, j]
         few[f"t_f_{name}_s"], few[f"speed_end_{name}"] = _rest(s.times, speeds, rest_speed)
-    if np.isfinite(s.front[-1]):
-        unsettled = np.nonzero(~(np.abs(s.front - s.front[-1]) <= d))[0]
-        t_front = float(s.times[unsettled[-1] + 1]) if unsettled.size else float(s.times[0])
-    else:
-        t_front = np.nan
+    t_front = front_settled(s.times, s.front, d)
     stats = s.stats
     return {
         "seed": seed,
