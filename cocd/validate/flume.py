@@ -51,9 +51,9 @@ SEED_SLOPES = (0.0, 5.0, 10.0, 15.0, 20.0)
 FAR_BINS = 5
 
 #: The front has settled once it stays within one bin (a diameter) of its final place.
-#: It moves a bin at a time, by a diameter give or take the grains' places (3.99 or
-#: 4.05 mm for 4 mm grains), so the test allows half a bin more: a one-bin flicker is
-#: always in, two bins always out.
+#: Its reading changes in whole bins, each a diameter give or take the grains' places
+#: (3.99 or 4.05 mm for 4 mm grains), so the test allows half a bin more: a one-bin
+#: flicker is always in, two bins always out.
 FRONT_BINS = 1.5
 
 #: Rest times robust to rattlers: from when no grain of the flow is faster than the rest
@@ -263,9 +263,9 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
 def front_settled(times: FloatArray, front: FloatArray, bin_width: float) -> float:
     """From when ``front`` stays within one bin of its last value (NaN if it has none).
 
-    The front moves a bin at a time, by ``bin_width`` give or take the grains' places,
-    so a reading less than :data:`FRONT_BINS` bins away counts as the same place or the
-    next one: a one-bin flicker is settled, a two-bin one is not.
+    The front's reading changes in whole bins, each ``bin_width`` give or take the
+    grains' places, so a reading less than :data:`FRONT_BINS` bins away counts as the
+    same place or the next one: a one-bin flicker is settled, a two-bin one is not.
     """
     if not np.isfinite(front[-1]):
         return np.nan
