@@ -269,8 +269,15 @@ def front_settled(times: FloatArray, front: FloatArray, bin_width: float) -> flo
     """
     if not np.isfinite(front[-1]):
         return np.nan
-    unsettled = np.nonzero(~(np.abs(front - front[-1]) < FRONT_BINS * bin_width))[0]
-    return float(times[unsettled[-1] + 1]) if unsettled.size else float(times[0])
+    return _holds_from(times, np.abs(front - front[-1]) < FRONT_BINS * bin_width)
+
+
+def _holds_from(times: FloatArray, holds: np.ndarray) -> float:
+    """The first saved time from which ``holds`` is true to the end (NaN if false at the end)."""
+    broken = np.nonzero(~holds)[0]
+    if not broken.size:
+        return float(times[0])
+    return np.nan if broken[-1] == times.size - 1 else float(times[broken[-1] + 1])
 
 
 def _row(
@@ -356,10 +363,7 @@ def _rest(times: FloatArray, speeds: FloatArray | None, rest_speed: float) -> tu
     end, or not measured), and the last frame's."""
     if speeds is None:
         return np.nan, np.nan
-    moving = np.nonzero(~(speeds <= rest_speed))[0]
-    if moving.size and moving[-1] == times.size - 1:
-        return np.nan, float(speeds[-1])
-    return float(times[moving[-1] + 1] if moving.size else times[0]), float(speeds[-1])
+    return _holds_from(times, speeds <= rest_speed), float(speeds[-1])
 
 
 def _figure(
@@ -517,7 +521,7 @@ def _summary(
         )
         parts.append(
             f"{row['slope_deg']:g} deg: Hf / H0 {pm(row, 'Hf_over_H0')}, runout from the "
-            f"gate {pm(row, 'runout_m')} m, {rest} ({few}), front within a diameter of "
+            f"gate {pm(row, 'runout_m')} m, {rest} ({few}), front within a bin of "
             f"its last place from {pm(row, 't_front_s')} s"
         )
     n_free = ", ".join(str(n) for n in sorted(set(table.n_free)))
