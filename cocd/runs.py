@@ -41,6 +41,8 @@ RUN_FILE = "run.h5"
 #: replaced with the run (``force=True``), since they would describe the old one.
 #: What ``cocd validate`` keeps of a finished run (:mod:`cocd.validate._common`).
 MEASURED_FILES = ("measured.json", "measured.npz", "measured_stats.parquet")
+#: The same, kept for an earlier end of a run that went on (``measured_to2.2s.json``, ...).
+MEASURED_EARLIER = "measured_to*s*"
 DERIVED_FILES = (
     "stats.csv",
     "profiles.png",
@@ -115,6 +117,8 @@ def run(
             )
         for name in (RUN_FILE, *DERIVED_FILES):
             (Path(out) / name).unlink(missing_ok=True)
+        for stale in Path(out).glob(MEASURED_EARLIER):
+            stale.unlink()
     stepper: Stepper | None = None
     if resume and path.exists():
         with RunFile(path) as old:

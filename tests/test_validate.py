@@ -22,6 +22,7 @@ from typer.testing import CliRunner
 from cocd.bench import estimate
 from cocd.cli import app
 from cocd.errors import CocdError
+from cocd.io.runfile import RunFile
 from cocd.studies import stability
 from cocd.validate import _common as validate
 from cocd.validate import erodible, nscd, timestep
@@ -162,6 +163,50 @@ def test_the_time_announced_for_a_resumed_run_counts_only_its_steps_left(tmp_pat
     lines = []
     validate.collapse_runs([fresh], progress=lines.append)
     assert not any("partly made" in line for line in lines)
+
+
+def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path):
+    """A case run again with a later ``until`` takes its run on; the measurements kept at
+    the earlier end stay, and a run file past the end asked is measured at that end,
+    as the run stopped there measured."""
+    how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
+    params = validate.base_params(30, 0.3)
+
+    def job(until):
+        return validate.collapse_job(tmp_path, "t", "run", 0, params, how, dt=1e-3,
+                                     until=until, frame_dt=0.01)  # fmt: skip
+
+    folder = tmp_path / "runs" / "t" / "run"
+    (short,) = validate.collapse_runs([job(0.09)], progress=_quiet([]))
+    (longer,) = validate.collapse_runs([job(0.12)], progress=_quiet([]))
+    assert longer.times[-1] == pytest.approx(0.12) and len(longer.stats) == 120
+    assert sorted(f.name for f in folder.glob("measured_to*")) == [
+        "measured_to0.09s.json", "measured_to0.09s.npz", "measured_to0.09s_stats.parquet"
+    ]  # fmt: skip
+
+    def same(a, b):
+        assert a.times == pytest.approx(b.times) and len(a.stats) == len(b.stats) == 90
+        np.testing.assert_allclose(a.front, b.front)
+        np.testing.assert_allclose(a.profiles, b.profiles)
+        np.testing.assert_allclose(a.speed_max, b.speed_max)
+
+    lines: list[str] = []
+    (kept,) = validate.collapse_runs([job(0.09)], progress=lines.append)
+    assert any(line.endswith("to t = 0.09 s (kept)") for line in lines), lines
+    same(kept, short)
+    for f in folder.glob("measured_to*"):
+        f.unlink()
+    (again,) = validate.collapse_runs([job(0.09)], progress=_quiet([]))
+    same(again, short)
+    assert again.steps_made == 0
+    with RunFile(folder / "run.h5") as rf:
+        assert int(rf.steps[-1]) == 120  # measured at 0.09 s, not run back
+    # Both ends are kept: each is read back without the run file.
+    (folder / "run.h5").unlink()
+    for until, n in ((0.09, 90), (0.12, 120)):
+        lines = []
+        (s,) = validate.collapse_runs([job(until)], progress=lines.append)
+        assert len(s.stats) == n and any(line.endswith("(kept)") for line in lines)
 
 
 def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, monkeypatch):

@@ -11,7 +11,10 @@ from its last frame (a run killed half-way loses at most one frame
 interval), and a finished run is only measured again. What a finished run
 measured is kept beside its run file (:data:`cocd.runs.MEASURED_FILES`, a
 few hundred kilobytes, committed with the results), so a case is rebuilt
-from them without the run file. ``fresh=True`` starts them over. A failed
+from them without the run file. A case run again with a later ``until``
+takes each run on from its end, and the measurements kept at the earlier end
+stay beside the new ones (``measured_to<until>s.*``); a run file that went past
+the end asked is measured at that end. ``fresh=True`` starts them over. A failed
 step stops the case with a :class:`CocdError` naming it; the run files keep
 what was computed.
 
@@ -273,7 +276,8 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
     ``job.surface``, of the free surface.
     """
     from cocd.errors import SolverError
-    from cocd.runs import MEASURED_FILES, RUN_FILE, Progress, run
+    from cocd.io.runfile import RunFile
+    from cocd.runs import MEASURED_EARLIER, MEASURED_FILES, RUN_FILE, Progress, run
 
     config, key = _run_key(job)
     folder, label, how = job.folder, job.label, job.how
@@ -293,10 +297,18 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
     if how.fresh:
         for name in MEASURED_FILES:
             (folder / name).unlink(missing_ok=True)
+        for stale in folder.glob(MEASURED_EARLIER):
+            stale.unlink()
     else:
         kept = read_measured(folder, key, label)
         if kept is not None:
             return kept
+        if _steps_held(job) > job.steps + 0.5:  # gone on past this end: measured there
+            from cocd.runs import _check_same
+
+            with RunFile(folder / RUN_FILE) as rf:
+                _check_same(rf.config, config.resolved(), folder / RUN_FILE)
+            return _measure_kept(job, key, folder / RUN_FILE, until=job.until)
     try:
         summary = run(
             config,
@@ -313,18 +325,27 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
         ) from None
     if summary.resumed_from_step and summary.steps > summary.resumed_from_step:
         progress(f"  {label}: resumed at step {summary.resumed_from_step}")
+    series = _measure_kept(job, key, summary.path)
+    return dataclasses.replace(series, steps_made=summary.steps - (summary.resumed_from_step or 0))
+
+
+def _measure_kept(
+    job: CollapseJob, key: dict[str, Any], path: Path, until: float | None = None
+) -> CollapseSeries:
+    """Measure ``job``'s run file (to ``until``, if given) and keep what it measured."""
     series = measure_series(
-        summary.path,
-        label,
+        path,
+        job.label,
         job.profile_times,
         job.bin_width,
         job.x_max,
         job.dt,
         job.surface,
         job.few,
+        until,
     )
-    write_measured(folder, key, series)
-    return dataclasses.replace(series, steps_made=summary.steps - (summary.resumed_from_step or 0))
+    write_measured(job.folder, key, series)
+    return series
 
 
 def _run_key(job: CollapseJob) -> tuple[Any, dict[str, Any]]:
@@ -370,6 +391,7 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
     that a case is measured again without the run file (every frame) or a rerun."""
     import json
 
+    _set_aside(folder, key)
     (folder / "measured.json").unlink(missing_ok=True)  # the old record goes first
     arrays = {
         "times": series.times,
@@ -389,13 +411,56 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
     tmp.replace(folder / "measured.json")
 
 
+def _set_aside(folder: Path, key: dict[str, Any]) -> None:
+    """Move the kept measurements in ``folder`` to :func:`measured_names` of their end when
+    ``key`` asks for another end of the same run, so that both stay (a run taken on to a
+    later end is still read at the earlier one); the record goes last."""
+    import json
+
+    try:
+        meta = json.loads((folder / "measured.json").read_text())
+        end = meta["config"]["run"]["until"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    if end is None or end == key["config"].get("run", {}).get("until"):
+        return
+    pairs = zip(measured_names(), measured_names(float(end)), strict=True)
+    for name, aside in reversed(list(pairs)):
+        if (folder / name).exists():
+            (folder / name).replace(folder / aside)
+
+
+def measured_names(until: float | None = None) -> tuple[str, str, str]:
+    """The files of a kept measurement (:data:`cocd.runs.MEASURED_FILES`), or, with
+    ``until``, those it is moved to when its run goes on to a later end
+    (``measured_to2.2s.json``, ...; :data:`cocd.runs.MEASURED_EARLIER`)."""
+    from cocd.runs import MEASURED_FILES
+
+    if until is None:
+        return MEASURED_FILES
+    tag = f"measured_to{until:g}s"
+    return f"{tag}.json", f"{tag}.npz", f"{tag}_stats.parquet"
+
+
 def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeries | None:
-    """The kept measurements of the same finished run and measurement, else None."""
+    """The kept measurements of the same run to the same end, measured the same way,
+    else None: the latest ones, or those kept for that end when the run went on."""
+    until = key["config"].get("run", {}).get("until")
+    for names in (measured_names(), *([measured_names(float(until))] if until else [])):
+        series = _read_measured(folder, names, key, label)
+        if series is not None:
+            return series
+    return None
+
+
+def _read_measured(
+    folder: Path, names: tuple[str, str, str], key: dict[str, Any], label: str
+) -> CollapseSeries | None:
     import json
 
     from cocd.runs import _check_same
 
-    path = folder / "measured.json"
+    path, npz, parquet = (folder / name for name in names)
     if not path.exists():
         return None
     try:
@@ -410,9 +475,9 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
     if kept != json.loads(json.dumps(wanted, default=str)):
         return None
     try:
-        with np.load(folder / "measured.npz") as data:
+        with np.load(npz) as data:
             arrays = {name: np.asarray(data[name]) for name in data.files}
-        stats = pd.read_parquet(folder / "measured_stats.parquet")
+        stats = pd.read_parquet(parquet)
     except (OSError, ValueError, KeyError):  # missing or damaged: measure the run again
         return None
     if key["measure"].get("surface") and "speed_max_flow" not in arrays:  # written with it
@@ -421,7 +486,7 @@ def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeri
         return None
     return CollapseSeries(
         label=label,
-        path=folder / "measured.json",
+        path=path,
         times=arrays["times"],
         front=arrays["front"],
         profile_times=arrays["profile_times"],
@@ -445,7 +510,10 @@ def measure_series(
     dt: float,
     surface_profiles: bool = False,
     few: Sequence[float] = (),
+    until: float | None = None,
 ) -> CollapseSeries:
+    """Measure the run file at ``path`` (to its frame at ``until`` if given, the run
+    having gone on past it; else to its last)."""
     from cocd.io.runfile import RunFile
     from cocd.measure import bed_surface, bed_top, mass_profile, surface_front
 
@@ -464,6 +532,11 @@ def measure_series(
         surface = bed_surface(scene0, edges)  # the erodible layer's top, else the bed's
         times = rf.times.copy()
         n = rf.n_frames
+        if until is not None:
+            n = int(np.count_nonzero(times <= until + _FRAME_MATCH * dt))
+            if n == 0 or abs(times[n - 1] - until) > _FRAME_MATCH * dt:
+                raise CocdError(f"{label}: no frame saved at t = {until:g} s in {path}")
+            times = times[:n]
 
         def frame_at(k: int) -> Frame:  # the last frame, read first, is not read again
             return last if k == n - 1 else rf.frame(k)
@@ -506,6 +579,8 @@ def measure_series(
             )
             profiles.append(np.nan_to_num(prof.height - base, nan=0.0).clip(min=0.0))
         stats = rf.stats()
+        if until is not None:  # the steps to that frame
+            stats = stats[stats["t"] <= until + _FRAME_MATCH * dt].reset_index(drop=True)
         n_grains = int(column.sum())
     return CollapseSeries(
         label=label,

@@ -87,7 +87,9 @@ class Settings(LargeCollapseSettings):
     )
     side_mu: float = option(0.23, "Friction of the sidewalls (seed 001's beads on glass).")
     dt: float = option(1e-2, "Time step (s).")
-    until: float = option(3.0, "Simulated time (s).")
+    until: float = option(
+        3.0, "Simulated time (s); a later one takes the kept runs on from their end."
+    )
     rest_speed: float = option(
         0.01, "At rest: no free grain faster than this (m/s; seed 001's criterion)."
     )
