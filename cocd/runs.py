@@ -41,8 +41,9 @@ RUN_FILE = "run.h5"
 #: replaced with the run (``force=True``), since they would describe the old one.
 #: What ``cocd validate`` keeps of a finished run (:mod:`cocd.validate._common`).
 MEASURED_FILES = ("measured.json", "measured.npz", "measured_stats.parquet")
-#: The same, kept for an earlier end of a run that went on (``measured_to2.2s.json``, ...).
-MEASURED_EARLIER = "measured_to*s*"
+#: The same, kept for another end of the run when it was measured at a new one
+#: (``measured_to2.2s.json``, ...; :func:`cocd.validate._common.measured_names`).
+MEASURED_OTHER_ENDS = ("measured_to*s.json", "measured_to*s.npz", "measured_to*s_stats.parquet")
 DERIVED_FILES = (
     "stats.csv",
     "profiles.png",
@@ -117,7 +118,7 @@ def run(
             )
         for name in (RUN_FILE, *DERIVED_FILES):
             (Path(out) / name).unlink(missing_ok=True)
-        for stale in Path(out).glob(MEASURED_EARLIER):
+        for stale in measured_other_ends(Path(out)):
             stale.unlink()
     stepper: Stepper | None = None
     if resume and path.exists():
@@ -247,26 +248,37 @@ def existing_run(path: Path) -> str:
         return "a run file that cannot be read"
 
 
-def _check_same(old: dict[str, Any], new: dict[str, Any], path: Path) -> None:
-    """Refuse to resume a run file with another scene or other run parameters."""
+def measured_other_ends(folder: Path) -> list[Path]:
+    """The files of :data:`MEASURED_OTHER_ENDS` in ``folder``."""
+    return [f for pattern in MEASURED_OTHER_ENDS for f in folder.glob(pattern) if f.is_file()]
+
+
+def _check_same(
+    old: dict[str, Any], new: dict[str, Any], path: Path, *, earlier: bool = False
+) -> None:
+    """Refuse to resume a run file with another scene or other run parameters; with
+    ``earlier``, to measure it at an earlier end as a run made with ``new`` (only its end
+    may differ then)."""
+    verb = "measure" if earlier else "resume"
     builder = str(new.get("builder"))
     if old.get("builder") != builder or not same_params(
         builder, old.get("params") or {}, new.get("params") or {}
     ):
         raise RunFileError(
-            f"cannot resume {path}: it holds a run of another scene "
+            f"cannot {verb} {path}: it holds a run of another scene "
             f"({old.get('builder')} {old.get('params')})"
         )
     old_run, new_run = old.get("run", {}), new.get("run", {})
     for key in sorted(set(old_run) | set(new_run)):
-        if key in _RESUMABLE_CHANGES:
+        if key in ({"until", "steps"} if earlier else _RESUMABLE_CHANGES):
             continue
-        if key == "fallback" and _extends(old_run.get(key), new_run.get(key)):
+        if not earlier and key == "fallback" and _extends(old_run.get(key), new_run.get(key)):
             continue
         if not _equal(old_run.get(key), new_run.get(key)):
             raise RunFileError(
-                f"cannot resume {path}: run.{key} was {old_run.get(key)!r}, "
+                f"cannot {verb} {path}: run.{key} was {old_run.get(key)!r}, "
                 f"now {new_run.get(key)!r}"
+                + (" (give it as it was, or --fresh to make the run again)" if earlier else "")
             )
 
 

@@ -169,27 +169,29 @@ def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path
     """A case run again with a later ``until`` takes its run on; the measurements kept at
     the earlier end stay, and a run file past the end asked is measured at that end,
     as the run stopped there measured."""
-    how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
     params = validate.base_params(30, 0.3)
 
-    def job(until):
+    def job(until, tol=1e-8, fresh=False):
+        how = validate.RunSettings(solver="clarabel", tol=tol, fallback=(), fresh=fresh)
         return validate.collapse_job(tmp_path, "t", "run", 0, params, how, dt=1e-3,
-                                     until=until, frame_dt=0.01)  # fmt: skip
+                                     until=until, frame_dt=0.01, profile_times=(0.05, 0.09),
+                                     few=(0.1,))  # fmt: skip
 
     folder = tmp_path / "runs" / "t" / "run"
+    aside = ["measured_to0.09s.json", "measured_to0.09s.npz", "measured_to0.09s_stats.parquet"]
     (short,) = validate.collapse_runs([job(0.09)], progress=_quiet([]))
     (longer,) = validate.collapse_runs([job(0.12)], progress=_quiet([]))
     assert longer.times[-1] == pytest.approx(0.12) and len(longer.stats) == 120
-    assert sorted(f.name for f in folder.glob("measured_to*")) == [
-        "measured_to0.09s.json", "measured_to0.09s.npz", "measured_to0.09s_stats.parquet"
-    ]  # fmt: skip
+    assert sorted(f.name for f in folder.glob("measured_to*")) == aside
 
     def same(a, b):
         assert a.times == pytest.approx(b.times) and len(a.stats) == len(b.stats) == 90
-        np.testing.assert_allclose(a.front, b.front)
-        np.testing.assert_allclose(a.profiles, b.profiles)
-        np.testing.assert_allclose(a.speed_max, b.speed_max)
+        for name in ("front", "profiles", "speed_max", "speed_max_flow", "speed_few_flow"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), err_msg=name)
+        cols = ["step", "t", "nc", "iterations", "status"]
+        pd.testing.assert_frame_equal(a.stats[cols], b.stats[cols])
 
+    assert short.profiles.any() and short.speed_max_flow.any() and short.speed_few_flow.any()
     lines: list[str] = []
     (kept,) = validate.collapse_runs([job(0.09)], progress=lines.append)
     assert any(line.endswith("to t = 0.09 s (kept)") for line in lines), lines
@@ -201,12 +203,21 @@ def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path
     assert again.steps_made == 0
     with RunFile(folder / "run.h5") as rf:
         assert int(rf.steps[-1]) == 120  # measured at 0.09 s, not run back
+    # Only the end may differ from the run's, and it must fall on a saved frame.
+    with pytest.raises(CocdError, match=r"cannot measure .*run.tol was 1e-08, now 1e-06"):
+        validate.collapse_runs([job(0.09, tol=1e-6)], progress=_quiet([]))
+    with pytest.raises(CocdError, match=r"no frame at t = 0.095 s .*0.01 s apart"):
+        validate.collapse_runs([job(0.095)], progress=_quiet([]))
     # Both ends are kept: each is read back without the run file.
-    (folder / "run.h5").unlink()
+    (folder / "run.h5").rename(tmp_path / "run.h5")
     for until, n in ((0.09, 90), (0.12, 120)):
         lines = []
         (s,) = validate.collapse_runs([job(until)], progress=lines.append)
         assert len(s.stats) == n and any(line.endswith("(kept)") for line in lines)
+    # Started over, a run keeps no measurement of another end.
+    (tmp_path / "run.h5").rename(folder / "run.h5")
+    validate.collapse_runs([job(0.09, fresh=True)], progress=_quiet([]))
+    assert not list(folder.glob("measured_to*"))
 
 
 def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, monkeypatch):

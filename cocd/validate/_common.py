@@ -14,7 +14,8 @@ few hundred kilobytes, committed with the results), so a case is rebuilt
 from them without the run file. A case run again with a later ``until``
 takes each run on from its end, and the measurements kept at the earlier end
 stay beside the new ones (``measured_to<until>s.*``); a run file that went past
-the end asked is measured at that end. ``fresh=True`` starts them over. A failed
+the end asked is measured at that end (the set kept before is moved aside in turn).
+``fresh=True`` starts them over. A failed
 step stops the case with a :class:`CocdError` naming it; the run files keep
 what was computed.
 
@@ -277,7 +278,7 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
     """
     from cocd.errors import SolverError
     from cocd.io.runfile import RunFile
-    from cocd.runs import MEASURED_EARLIER, MEASURED_FILES, RUN_FILE, Progress, run
+    from cocd.runs import MEASURED_FILES, RUN_FILE, Progress, measured_other_ends, run
 
     config, key = _run_key(job)
     folder, label, how = job.folder, job.label, job.how
@@ -297,7 +298,7 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
     if how.fresh:
         for name in MEASURED_FILES:
             (folder / name).unlink(missing_ok=True)
-        for stale in folder.glob(MEASURED_EARLIER):
+        for stale in measured_other_ends(folder):
             stale.unlink()
     else:
         kept = read_measured(folder, key, label)
@@ -307,7 +308,7 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
             from cocd.runs import _check_same
 
             with RunFile(folder / RUN_FILE) as rf:
-                _check_same(rf.config, config.resolved(), folder / RUN_FILE)
+                _check_same(rf.config, config.resolved(), folder / RUN_FILE, earlier=True)
             return _measure_kept(job, key, folder / RUN_FILE, until=job.until)
     try:
         summary = run(
@@ -414,7 +415,9 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
 def _set_aside(folder: Path, key: dict[str, Any]) -> None:
     """Move the kept measurements in ``folder`` to :func:`measured_names` of their end when
     ``key`` asks for another end of the same run, so that both stay (a run taken on to a
-    later end is still read at the earlier one); the record goes last."""
+    later end is still read at the earlier one, and one measured at an earlier end still
+    at its own). A set kept there before goes first, its record first, and the record
+    moves last: a move cut short leaves no record beside another set's arrays."""
     import json
 
     try:
@@ -424,21 +427,23 @@ def _set_aside(folder: Path, key: dict[str, Any]) -> None:
         return
     if end is None or end == key["config"].get("run", {}).get("until"):
         return
-    pairs = zip(measured_names(), measured_names(float(end)), strict=True)
-    for name, aside in reversed(list(pairs)):
+    names = measured_names(float(end))
+    for aside in names:
+        (folder / aside).unlink(missing_ok=True)
+    for name, aside in reversed(list(zip(measured_names(), names, strict=True))):
         if (folder / name).exists():
             (folder / name).replace(folder / aside)
 
 
 def measured_names(until: float | None = None) -> tuple[str, str, str]:
     """The files of a kept measurement (:data:`cocd.runs.MEASURED_FILES`), or, with
-    ``until``, those it is moved to when its run goes on to a later end
-    (``measured_to2.2s.json``, ...; :data:`cocd.runs.MEASURED_EARLIER`)."""
+    ``until``, those it is moved to when the run is measured at another end
+    (``measured_to2.2s.json``, ...; :data:`cocd.runs.MEASURED_OTHER_ENDS`)."""
     from cocd.runs import MEASURED_FILES
 
     if until is None:
         return MEASURED_FILES
-    tag = f"measured_to{until:g}s"
+    tag = f"measured_to{until:.12g}s"
     return f"{tag}.json", f"{tag}.npz", f"{tag}_stats.parquet"
 
 
@@ -535,7 +540,11 @@ def measure_series(
         if until is not None:
             n = int(np.count_nonzero(times <= until + _FRAME_MATCH * dt))
             if n == 0 or abs(times[n - 1] - until) > _FRAME_MATCH * dt:
-                raise CocdError(f"{label}: no frame saved at t = {until:g} s in {path}")
+                spacing = float(times[1] - times[0]) if times.size > 1 else 0.0
+                raise CocdError(
+                    f"{label}: {path} saves no frame at t = {until:g} s (its frames are "
+                    f"{spacing:g} s apart, to t = {times[-1]:g} s): ask an end on one of them"
+                )
             times = times[:n]
 
         def frame_at(k: int) -> Frame:  # the last frame, read first, is not read again
