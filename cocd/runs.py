@@ -12,6 +12,7 @@ in the same final state.
 from __future__ import annotations
 
 import os
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -43,7 +44,7 @@ RUN_FILE = "run.h5"
 MEASURED_FILES = ("measured.json", "measured.npz", "measured_stats.parquet")
 #: The same, kept for another end of the run when it was measured at a new one
 #: (``measured_to2.2s.json``, ...; :func:`cocd.validate._common.measured_names`).
-MEASURED_OTHER_ENDS = ("measured_to*s.json", "measured_to*s.npz", "measured_to*s_stats.parquet")
+MEASURED_OTHER_ENDS = re.compile(r"measured_to[0-9.e+-]+s(\.json|\.npz|_stats\.parquet)")
 DERIVED_FILES = (
     "stats.csv",
     "profiles.png",
@@ -250,7 +251,11 @@ def existing_run(path: Path) -> str:
 
 def measured_other_ends(folder: Path) -> list[Path]:
     """The files of :data:`MEASURED_OTHER_ENDS` in ``folder``."""
-    return [f for pattern in MEASURED_OTHER_ENDS for f in folder.glob(pattern) if f.is_file()]
+    return [
+        f
+        for f in folder.glob("measured_to*")
+        if MEASURED_OTHER_ENDS.fullmatch(f.name) and f.is_file()
+    ]
 
 
 def _check_same(

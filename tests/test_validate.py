@@ -196,11 +196,15 @@ def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path
     (kept,) = validate.collapse_runs([job(0.09)], progress=lines.append)
     assert any(line.endswith("to t = 0.09 s (kept)") for line in lines), lines
     same(kept, short)
-    for f in folder.glob("measured_to*"):
-        f.unlink()
+    for name in aside:
+        (folder / name).unlink()
+    (folder / "measured_to0.12s.json").write_text("{}\n")  # a stale record: replaced
+    (folder / "measured_tools.json").write_text("{}\n")  # not a measurement: left alone
     (again,) = validate.collapse_runs([job(0.09)], progress=_quiet([]))
     same(again, short)
     assert again.steps_made == 0
+    moved = json.loads((folder / "measured_to0.12s.json").read_text())
+    assert moved["config"]["run"]["until"] == 0.12
     with RunFile(folder / "run.h5") as rf:
         assert int(rf.steps[-1]) == 120  # measured at 0.09 s, not run back
     # Only the end may differ from the run's, and it must fall on a saved frame.
@@ -217,7 +221,7 @@ def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path
     # Started over, a run keeps no measurement of another end.
     (tmp_path / "run.h5").rename(folder / "run.h5")
     validate.collapse_runs([job(0.09, fresh=True)], progress=_quiet([]))
-    assert not list(folder.glob("measured_to*"))
+    assert [f.name for f in folder.glob("measured_to*")] == ["measured_tools.json"]
 
 
 def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, monkeypatch):

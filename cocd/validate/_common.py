@@ -449,7 +449,8 @@ def measured_names(until: float | None = None) -> tuple[str, str, str]:
 
 def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeries | None:
     """The kept measurements of the same run to the same end, measured the same way,
-    else None: the latest ones, or those kept for that end when the run went on."""
+    else None: the latest ones, or the set moved aside for that end
+    (:func:`measured_names`) when the run was measured at another end."""
     until = key["config"].get("run", {}).get("until")
     for names in (measured_names(), *([measured_names(float(until))] if until else [])):
         series = _read_measured(folder, names, key, label)
