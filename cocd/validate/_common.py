@@ -393,7 +393,8 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
     import json
 
     _set_aside(folder, key)
-    (folder / "measured.json").unlink(missing_ok=True)  # the old record goes first
+    record, npz, stats = measured_names()
+    (folder / record).unlink(missing_ok=True)  # the old record goes first
     arrays = {
         "times": series.times,
         "front": series.front,
@@ -404,12 +405,12 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
     for name in ("speed_max", "speed_max_flow", "speed_few_flow"):
         if getattr(series, name) is not None:
             arrays[name] = getattr(series, name)
-    np.savez_compressed(folder / "measured.npz", **arrays)  # type: ignore[arg-type]
-    series.stats.to_parquet(folder / "measured_stats.parquet", index=False)
+    np.savez_compressed(folder / npz, **arrays)  # type: ignore[arg-type]
+    series.stats.to_parquet(folder / stats, index=False)
     meta = {**key, "n_grains": series.n_grains, "d_mean": series.d_mean}
-    tmp = folder / "measured.json.tmp"  # written last: its presence means the rest is whole
+    tmp = folder / f"{record}.tmp"  # written last: its presence means the rest is whole
     tmp.write_text(json.dumps(meta, indent=1, default=str) + "\n")
-    tmp.replace(folder / "measured.json")
+    tmp.replace(folder / record)
 
 
 def _set_aside(folder: Path, key: dict[str, Any]) -> None:
@@ -421,7 +422,7 @@ def _set_aside(folder: Path, key: dict[str, Any]) -> None:
     import json
 
     try:
-        meta = json.loads((folder / "measured.json").read_text())
+        meta = json.loads((folder / measured_names()[0]).read_text())
         end = meta["config"]["run"]["until"]
     except (OSError, ValueError, KeyError, TypeError):
         return
