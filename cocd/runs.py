@@ -33,6 +33,7 @@ __all__ = [
     "RunSummary",
     "existing_run",
     "export_step",
+    "measured_names",
     "run",
 ]
 
@@ -43,7 +44,7 @@ RUN_FILE = "run.h5"
 #: What ``cocd validate`` keeps of a finished run (:mod:`cocd.validate._common`).
 MEASURED_FILES = ("measured.json", "measured.npz", "measured_stats.parquet")
 #: The same, kept for another end of the run when it was measured at a new one
-#: (``measured_to2.2s.json``, ...; :func:`cocd.validate._common.measured_names`).
+#: (``measured_to2.2s.json``, ...; :func:`measured_names`).
 MEASURED_OTHER_ENDS = re.compile(r"measured_to[0-9.e+-]+s(\.json|\.npz|_stats\.parquet)")
 DERIVED_FILES = (
     "stats.csv",
@@ -247,6 +248,16 @@ def existing_run(path: Path) -> str:
             return f"{int(stats.step.iloc[-1])} steps to t = {float(stats.t.iloc[-1]):.4g} s"
     except (RunFileError, OSError, KeyError, AttributeError):
         return "a run file that cannot be read"
+
+
+def measured_names(until: float | None = None) -> tuple[str, str, str]:
+    """The files of a kept measurement (:data:`MEASURED_FILES`), or, with ``until``,
+    those it is moved to when the run is measured at another end
+    (``measured_to2.2s.json``, ...; :data:`MEASURED_OTHER_ENDS`)."""
+    if until is None:
+        return MEASURED_FILES
+    tag = f"measured_to{until:.12g}s"
+    return f"{tag}.json", f"{tag}.npz", f"{tag}_stats.parquet"
 
 
 def measured_other_ends(folder: Path) -> list[Path]:

@@ -47,6 +47,7 @@ from cocd.bench import estimate, report
 from cocd.bench.study import Study, StudySettings, option
 from cocd.bench.study import register as study_register
 from cocd.errors import CocdError
+from cocd.runs import measured_names
 from cocd.stepper import DEFAULT_PENETRATION_TOL
 
 if TYPE_CHECKING:
@@ -434,18 +435,6 @@ def _set_aside(folder: Path, key: dict[str, Any]) -> None:
     for name, aside in reversed(list(zip(measured_names(), names, strict=True))):
         if (folder / name).exists():
             (folder / name).replace(folder / aside)
-
-
-def measured_names(until: float | None = None) -> tuple[str, str, str]:
-    """The files of a kept measurement (:data:`cocd.runs.MEASURED_FILES`), or, with
-    ``until``, those it is moved to when the run is measured at another end
-    (``measured_to2.2s.json``, ...; :data:`cocd.runs.MEASURED_OTHER_ENDS`)."""
-    from cocd.runs import MEASURED_FILES
-
-    if until is None:
-        return MEASURED_FILES
-    tag = f"measured_to{until:.12g}s"
-    return f"{tag}.json", f"{tag}.npz", f"{tag}_stats.parquet"
 
 
 def read_measured(folder: Path, key: dict[str, Any], label: str) -> CollapseSeries | None:
