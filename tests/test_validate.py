@@ -165,6 +165,27 @@ def test_the_time_announced_for_a_resumed_run_counts_only_its_steps_left(tmp_pat
     assert not any("partly made" in line for line in lines)
 
 
+def test_a_run_partly_made_is_finished_before_a_new_one_starts(tmp_path):
+    """Of the runs to make, one stopped part-way is taken up first, whatever its place
+    in the list; the series come back in the list's order."""
+    how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
+    steps = dict(dt=1e-3, frame_dt=0.01)
+
+    def job(name, until):
+        return validate.collapse_job(tmp_path, "t", name, 0, validate.base_params(30, 0.3),
+                                     how, until=until, **steps)  # fmt: skip
+
+    validate.collapse_runs([job("second", 0.03)], progress=_quiet([]))
+    (tmp_path / "runs" / "t" / "second" / "measured.json").unlink()
+    lines: list[str] = []
+    series = validate.collapse_runs([job("first", 0.05), job("second", 0.05)],
+                                    progress=lines.append)  # fmt: skip
+    starts = [line.split(" (")[0] for line in lines if line.startswith("t: ") and "(" in line]
+    assert starts == ["t: second", "t: first"], lines
+    assert any(line.endswith("resumed at step 30") for line in lines)
+    assert [s.label for s in series] == ["first", "second"]
+
+
 def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path):
     """A case run again with a later ``until`` takes its run on; the measurements kept at
     the earlier end stay, and a run file past the end asked is measured at that end,

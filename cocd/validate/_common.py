@@ -698,7 +698,8 @@ def collapse_runs(
     ``progress``. Runs whose measurements are kept are read back here, without a
     process. After a failed run no other starts: the running ones finish (and are
     kept), then its error is raised. An interrupt stops the workers, whose runs
-    resume from their last frame next time.
+    resume from their last frame next time. Runs partly made are taken up first, those
+    furthest on before the others, so a run begun is finished before a new one starts.
     """
     workers = positive_int("workers", workers)
     folders = [job.folder for job in jobs]
@@ -734,6 +735,9 @@ def collapse_runs(
             measured=_kept_rate(jobs, series, todo, left),
             runs=len(todo),
         )
+    # The runs furthest on go first, so that a session cut short finishes the runs it
+    # had started before it begins new ones (the order of the series is kept).
+    todo.sort(key=lambda k: -held[k])
     if workers == 1 or len(todo) < 2:
         for k in todo:
             series[k] = _collapse(jobs[k], progress)
