@@ -165,6 +165,18 @@ def test_the_time_announced_for_a_resumed_run_counts_only_its_steps_left(tmp_pat
     assert not any("partly made" in line for line in lines)
 
 
+def test_a_runs_cost_counts_the_attempts_of_steps_taken_again():
+    """A step redone with a wider margin cost its discarded attempts too: they are in
+    the run's compute seconds; statistics written before ``redo_time`` existed sum
+    the rest."""
+    stats = pd.DataFrame(
+        {"detect_time": [1.0, 2.0], "setup_time": [0.5, 0.5], "solve_time": [3.0, 4.0],
+         "redo_time": [0.0, 7.0]}
+    )  # fmt: skip
+    assert validate.compute_seconds(stats) == pytest.approx(18.0)
+    assert validate.compute_seconds(stats.drop(columns="redo_time")) == pytest.approx(11.0)
+
+
 def test_a_run_partly_made_is_finished_before_a_new_one_starts(tmp_path):
     """Of the runs to make, one stopped part-way is taken up first, whatever its place
     in the list; the series come back in the list's order."""

@@ -137,8 +137,17 @@ class CollapseSeries:
     @property
     def compute_s(self) -> float:
         """Seconds of detection, set-up and solving summed over the steps."""
-        s = self.stats
-        return float((s.detect_time + s.setup_time + s.solve_time).sum())
+        return compute_seconds(self.stats)
+
+
+def compute_seconds(stats: pd.DataFrame) -> float:
+    """Seconds of detection, set-up and solving summed over a run's steps (its
+    per-step statistics), the attempts of a step taken again with a wider margin
+    (``redo_time``) included: the run's cost, not only that of the answers kept."""
+    spent = stats.detect_time + stats.setup_time + stats.solve_time
+    if "redo_time" in stats:
+        spent = spent + stats.redo_time.fillna(0.0)
+    return float(spent.sum())
 
 
 @dataclass(frozen=True)

@@ -479,18 +479,13 @@ def _tilt(
         "holds": len(trace),
         "steps": stepper.step_count,
         "penetration_max": float(stepper.stats().penetration.max()),
-        "compute_s": _compute_seconds(stepper.stats()),
+        "compute_s": base.compute_seconds(stepper.stats()),
     }
     progress(
         f"{job.label}: avalanche at {avalanche_deg:.1f} deg, stops at tilt {tilt:g} "
         f"with its surface at {row['stop_deg']:.1f} deg"
     )
     return row, trace
-
-
-def _compute_seconds(stats: pd.DataFrame) -> float:
-    """Detection, set-up and solve seconds summed over a stepper's steps."""
-    return float((stats.detect_time + stats.setup_time + stats.solve_time).sum())
 
 
 def _hold(

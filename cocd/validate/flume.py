@@ -247,7 +247,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "fail alone; "
         "`front_m`: the front at the end, from the back wall; `W_over_d`: the channel in "
         "diameters; `n_free`: free grains (pile and bed); `n_pile`: the pile's grains; "
-        "`s_per_step`: detection, set-up and solve per step."
+        "`s_per_step`: detection, set-up and solve per step, the attempts of steps taken "
+        "again with a wider margin included; `redos`: those attempts."
     )
     base.finish(
         out,
@@ -346,6 +347,7 @@ def _row(
         ),
         "ke_end_over_peak": _ke_ratio(stats),
         "steps": s.steps,
+        "redos": int(stats.redos.sum()) if "redos" in stats else 0,
         "iterations_mean": float(stats.iterations.mean()) if len(stats) else np.nan,
         "s_per_step": s.compute_s / s.steps if s.steps else np.nan,
         "compute_s": s.compute_s,
