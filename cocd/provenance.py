@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import functools
+import os
+import platform
 import subprocess
 from pathlib import Path
 from typing import Any
 
-__all__ = ["provenance"]
+__all__ = ["cpu_name", "machine_name", "provenance"]
 
 
 #: The work tree's results folder: files a command writes, not the software.
@@ -44,3 +46,22 @@ def provenance() -> dict[str, Any]:
     except (OSError, subprocess.SubprocessError):
         pass
     return {"cocd": __version__, "commit": commit, "dirty": dirty}
+
+
+@functools.cache
+def cpu_name() -> str:
+    """The CPU's model name (Linux's ``/proc/cpuinfo``; else what :mod:`platform` says)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return cpu
+
+
+def machine_name() -> str:
+    """``CPU, n cores``: what a step's time depends on, recorded with a run's steps."""
+    return f"{cpu_name()}, {os.cpu_count()} cores"

@@ -187,6 +187,36 @@ def test_resume_continues_a_shorter_run_and_later_until(tmp_path):
         assert list(b.stats().step) == list(range(1, 15))
 
 
+def test_a_run_file_says_which_machine_made_which_steps(tmp_path, monkeypatch):
+    """A run's steps are timed on the machine that made them: the run file records it,
+    and a run resumed on another machine records where that one took it on; a file
+    written before machines were recorded says so ("") for its first steps."""
+    import cocd.io.runfile as runfile
+    from cocd.provenance import machine_name
+
+    def config(steps):
+        return parse_config({"builder": "column_2d", "params": {"n_grains": 30},
+                             "run": {"steps": steps, "frame_every": 2}})  # fmt: skip
+
+    run(config(4), tmp_path)
+    with RunFile(tmp_path / "run.h5") as rf:
+        assert rf.machines == [(1, machine_name())]
+    run(config(6), tmp_path, resume=True)  # the same machine: nothing to add
+    with RunFile(tmp_path / "run.h5") as rf:
+        assert rf.machines == [(1, machine_name())]
+    monkeypatch.setattr(runfile, "machine_name", lambda: "Other CPU, 64 cores")
+    run(config(8), tmp_path, resume=True)
+    with RunFile(tmp_path / "run.h5") as rf:
+        assert rf.machines == [(1, machine_name()), (7, "Other CPU, 64 cores")]
+    with h5py.File(tmp_path / "run.h5", "a") as f:
+        del f.attrs["machines"]
+    with RunFile(tmp_path / "run.h5") as rf:
+        assert rf.machines == []
+    run(config(10), tmp_path, resume=True)
+    with RunFile(tmp_path / "run.h5") as rf:
+        assert rf.machines == [(1, ""), (9, "Other CPU, 64 cores")]
+
+
 def test_resume_refuses_another_scene_or_time_step(tmp_path):
     base = {"builder": "column_2d", "params": {"n_grains": 30}, "run": {"steps": 2}}
     run(parse_config(base), tmp_path)

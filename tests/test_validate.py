@@ -8,6 +8,7 @@ it again only reads its run files.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -196,6 +197,16 @@ def test_a_run_partly_made_is_finished_before_a_new_one_starts(tmp_path):
     assert starts == ["t: second", "t: first"], lines
     assert any(line.endswith("resumed at step 30") for line in lines)
     assert [s.label for s in series] == ["first", "second"]
+    # Each says where its steps were made, read back from its kept measurements too.
+    from cocd.provenance import machine_name
+
+    again = validate.collapse_runs([job("first", 0.05), job("second", 0.05)],
+                                   progress=_quiet([]))  # fmt: skip
+    for s in (*series, *again):
+        assert s.machines == ((1, machine_name()),) and s.machine == machine_name()
+    resumed = dataclasses.replace(series[0], machines=((1, ""), (7, "Other CPU, 64 cores")))
+    assert resumed.machine == "not recorded from step 1; Other CPU, 64 cores from step 7"
+    assert dataclasses.replace(series[0], machines=()).machine == "not recorded"
 
 
 def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path):

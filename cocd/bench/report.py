@@ -89,15 +89,8 @@ PACKAGES = [
 
 def machine_info() -> dict[str, Any]:
     """CPU model, cores, memory, OS, Python and the versions of the numerical packages."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    from cocd.provenance import cpu_name, provenance
+
     try:
         memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**30
     except (ValueError, OSError):
@@ -108,11 +101,9 @@ def machine_info() -> dict[str, Any]:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             continue
-    from cocd.provenance import provenance
-
     return {
         "software": provenance(),
-        "cpu": cpu,
+        "cpu": cpu_name(),
         "cores": os.cpu_count(),
         "memory_gib": round(memory, 1),
         "os": f"{platform.system()} {platform.release()}",

@@ -4,6 +4,10 @@ Layout (``format = "cocd-run"``, ``version = 1`` in the root attributes)::
 
     /                     attrs: format, version, dim, n_grains, contact_dim,
                           cocd_version, git_commit (``+dirty``: modified),
+                          machines (JSON: ``[first step, "CPU, n cores"]`` for
+                          the machine of each stretch of steps, a resumed run's
+                          next one appended when it differs; "" for steps made
+                          before machines were recorded),
                           units (JSON: the SI unit of every array and statistic),
                           config (the fully resolved configuration, JSON),
                           scene_file (the scene file's text, if any)
@@ -47,6 +51,7 @@ from numpy.typing import NDArray
 
 from cocd.contacts import ContactSet
 from cocd.errors import CocdError
+from cocd.provenance import machine_name
 from cocd.scene import Scene, Wall
 from cocd.stepper import StepRecord
 
@@ -147,6 +152,10 @@ class RunWriter:
         try:
             with h5py.File(tmp, "w", libver="latest") as f:
                 _copy_prefix(source, f)
+                machines = [list(m) for m in source.machines] or [[1, ""]]
+                if machines[-1][1] != machine_name():
+                    machines.append([int(source.steps[-1]) + 1, machine_name()])
+                f.attrs["machines"] = json.dumps(machines)
                 if config is not None:
                     f.attrs["config"] = json.dumps(config)
         finally:
@@ -231,6 +240,7 @@ def _layout(f: h5py.File, scene: Scene, config: dict[str, Any], scene_file: str)
         contact_dim=1 if scene.frictionless else d,
         config=json.dumps(config),
         scene_file=scene_file,
+        machines=json.dumps([[1, machine_name()]]),
     )
     s = f.create_group("scene")
     s["radii"] = scene.radii
@@ -380,6 +390,11 @@ class RunFile:
             self.contact_dim = int(self.f.attrs["contact_dim"])
             self.config: dict[str, Any] = json.loads(self.f.attrs["config"])
             self.scene_file = str(self.f.attrs.get("scene_file", ""))
+            #: ``(first step, "CPU, n cores")`` of each stretch of steps; empty for a
+            #: file written before machines were recorded.
+            self.machines: list[tuple[int, str]] = [
+                (int(k), str(m)) for k, m in json.loads(self.f.attrs.get("machines", "[]"))
+            ]
             self.radii = np.asarray(self.f["scene/radii"][:], dtype=np.float64)
             # Complete frames: those whose step is written, and whose other data is there.
             steps = self.f["frames/step"]

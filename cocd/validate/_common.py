@@ -117,6 +117,21 @@ class CollapseSeries:
     #: share of the column's grain count stay at or below (the ``floor(share * n) + 1``-th
     #: largest; 0 when the flow holds fewer grains); None when not asked.
     speed_few_flow: FloatArray | None = None
+    #: ``(first step, "CPU, n cores")`` of each stretch of the run's steps
+    #: (:attr:`cocd.io.runfile.RunFile.machines`): where its time was measured; empty
+    #: for a run written before machines were recorded.
+    machines: tuple[tuple[int, str], ...] = ()
+
+    @property
+    def machine(self) -> str:
+        """Where the steps were made, in words: ``CPU, n cores``, or each machine with
+        the step it took the run on from; "not recorded" for steps made before
+        machines were recorded."""
+        if not self.machines:
+            return "not recorded"
+        if len(self.machines) == 1:
+            return self.machines[0][1] or "not recorded"
+        return "; ".join(f"{m or 'not recorded'} from step {k}" for k, m in self.machines)
 
     @property
     def steps(self) -> int:
@@ -417,7 +432,12 @@ def write_measured(folder: Path, key: dict[str, Any], series: CollapseSeries) ->
             arrays[name] = getattr(series, name)
     np.savez_compressed(folder / npz, **arrays)  # type: ignore[arg-type]
     series.stats.to_parquet(folder / stats, index=False)
-    meta = {**key, "n_grains": series.n_grains, "d_mean": series.d_mean}
+    meta = {
+        **key,
+        "n_grains": series.n_grains,
+        "d_mean": series.d_mean,
+        "machines": [list(m) for m in series.machines],
+    }
     tmp = folder / f"{record}.tmp"  # written last: its presence means the rest is whole
     tmp.write_text(json.dumps(meta, indent=1, default=str) + "\n")
     tmp.replace(folder / record)
@@ -503,6 +523,7 @@ def _read_measured(
         speed_max=arrays.get("speed_max"),
         speed_max_flow=arrays.get("speed_max_flow"),
         speed_few_flow=arrays.get("speed_few_flow"),
+        machines=tuple((int(k), str(m)) for k, m in meta.get("machines", [])),
     )
 
 
@@ -591,6 +612,8 @@ def measure_series(
         if until is not None:  # the steps to that frame
             stats = stats[stats["t"] <= until + _FRAME_MATCH * dt].reset_index(drop=True)
         n_grains = int(column.sum())
+        last_step = int(stats["step"].iloc[-1]) if len(stats) else 0
+        machines = tuple(m for m in rf.machines if m[0] <= max(last_step, 1))
     return CollapseSeries(
         label=label,
         path=path,
@@ -605,6 +628,7 @@ def measure_series(
         speed_max=speed_max,
         speed_max_flow=speed_max_flow,
         speed_few_flow=speed_few_flow if ranks else None,
+        machines=machines,
     )
 
 

@@ -248,7 +248,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "`front_m`: the front at the end, from the back wall; `W_over_d`: the channel in "
         "diameters; `n_free`: free grains (pile and bed); `n_pile`: the pile's grains; "
         "`s_per_step`: detection, set-up and solve per step, the attempts of steps taken "
-        "again with a wider margin included; `redos`: those attempts."
+        "again with a wider margin included; `redos`: those attempts; `machine`: where "
+        "the steps were made (CPU, cores)."
     )
     base.finish(
         out,
@@ -352,6 +353,7 @@ def _row(
         "s_per_step": s.compute_s / s.steps if s.steps else np.nan,
         "compute_s": s.compute_s,
         "penetration_max": s.penetration_max,
+        "machine": s.machine,
     }
 
 
