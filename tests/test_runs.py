@@ -204,17 +204,26 @@ def test_a_run_file_says_which_machine_made_which_steps(tmp_path, monkeypatch):
     run(config(6), tmp_path, resume=True)  # the same machine: nothing to add
     with RunFile(tmp_path / "run.h5") as rf:
         assert rf.machines == [(1, machine_name())]
-    monkeypatch.setattr(runfile, "machine_name", lambda: "Other CPU, 64 cores")
-    run(config(8), tmp_path, resume=True)
-    with RunFile(tmp_path / "run.h5") as rf:
-        assert rf.machines == [(1, machine_name()), (7, "Other CPU, 64 cores")]
+    here, other = machine_name(), "Other CPU, 64 cores"
+
+    def resume_on(machine, steps):
+        monkeypatch.setattr(runfile, "machine_name", lambda: machine)
+        run(config(steps), tmp_path, resume=True)
+        with RunFile(tmp_path / "run.h5") as rf:
+            return rf.machines
+
+    assert resume_on(other, 8) == [(1, here), (7, other)]
+    # Opened again on a third machine with no step left to make: it made none, and the
+    # machine that takes the run on next is recorded from the next step.
+    assert resume_on("Third CPU, 8 cores", 8) == [(1, here), (7, other), (9, "Third CPU, 8 cores")]
+    assert resume_on(here, 10) == [(1, here), (7, other), (9, here)]
+    with h5py.File(tmp_path / "run.h5", "a") as f:
+        f.attrs["machines"] = "not a list"
+    with RunFile(tmp_path / "run.h5") as rf:  # unreadable: not recorded, the run still read
+        assert rf.machines == [] and rf.n_frames > 0
     with h5py.File(tmp_path / "run.h5", "a") as f:
         del f.attrs["machines"]
-    with RunFile(tmp_path / "run.h5") as rf:
-        assert rf.machines == []
-    run(config(10), tmp_path, resume=True)
-    with RunFile(tmp_path / "run.h5") as rf:
-        assert rf.machines == [(1, ""), (9, "Other CPU, 64 cores")]
+    assert resume_on(other, 12) == [(1, ""), (11, other)]
 
 
 def test_resume_refuses_another_scene_or_time_step(tmp_path):

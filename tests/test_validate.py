@@ -209,6 +209,32 @@ def test_a_run_partly_made_is_finished_before_a_new_one_starts(tmp_path):
     assert dataclasses.replace(series[0], machines=()).machine == "not recorded"
 
 
+def test_a_run_measured_at_an_earlier_end_names_those_steps_machines(tmp_path, monkeypatch):
+    """A run taken on elsewhere says so from the step it was taken on; measured at an
+    end before that step, only the first machine made the steps measured."""
+    import cocd.io.runfile as runfile
+    from cocd.provenance import machine_name
+    from cocd.runs import MEASURED_FILES, measured_other_ends
+
+    how = validate.RunSettings(solver="clarabel", tol=1e-8, fallback=())
+
+    def job(until):
+        return validate.collapse_job(tmp_path, "t", "run", 0, validate.base_params(30, 0.3),
+                                     how, dt=1e-3, until=until, frame_dt=0.01)  # fmt: skip
+
+    here, other = machine_name(), "Other CPU, 64 cores"
+    validate.collapse_runs([job(0.03)], progress=_quiet([]))
+    monkeypatch.setattr(runfile, "machine_name", lambda: other)
+    (later,) = validate.collapse_runs([job(0.05)], progress=_quiet([]))
+    assert later.machines == ((1, here), (31, other))
+    assert later.machine == f"{here} from step 1; {other} from step 31"
+    folder = tmp_path / "runs" / "t" / "run"
+    for kept in (*measured_other_ends(folder), *(folder / name for name in MEASURED_FILES)):
+        kept.unlink(missing_ok=True)
+    (earlier,) = validate.collapse_runs([job(0.03)], progress=_quiet([]))  # measured again
+    assert earlier.steps == 30 and earlier.machines == ((1, here),)
+
+
 def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path):
     """A case run again with a later ``until`` takes its run on; the measurements kept at
     the earlier end stay, and a run file past the end asked is measured at that end,

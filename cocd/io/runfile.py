@@ -152,10 +152,7 @@ class RunWriter:
         try:
             with h5py.File(tmp, "w", libver="latest") as f:
                 _copy_prefix(source, f)
-                machines = [list(m) for m in source.machines] or [[1, ""]]
-                if machines[-1][1] != machine_name():
-                    machines.append([int(source.steps[-1]) + 1, machine_name()])
-                f.attrs["machines"] = json.dumps(machines)
+                f.attrs["machines"] = json.dumps(_machines_on(source))
                 if config is not None:
                     f.attrs["config"] = json.dumps(config)
         finally:
@@ -292,6 +289,19 @@ def _layout(f: h5py.File, scene: Scene, config: dict[str, Any], scene_file: str)
         st.create_dataset(name, shape=(0,), maxshape=(None,), chunks=(1024,), dtype=kind)
 
 
+def _machines_on(source: RunFile) -> list[list[Any]]:
+    """``source``'s machines as a run resumed here from its last complete frame records
+    them: the stretches that made its steps (those after that frame made none), then
+    this machine from the next step, unless it made the last stretch."""
+    last = int(source.steps[-1]) if source.n_frames else 0
+    machines = [[k, m] for k, m in source.machines if k <= last]
+    if last > 0 and not machines:  # a file written before machines were recorded
+        machines = [[1, ""]]
+    if not machines or machines[-1][1] != machine_name():
+        machines.append([last + 1, machine_name()])
+    return machines
+
+
 def _copy_prefix(source: RunFile, f: h5py.File) -> None:
     """The complete frames of ``source`` and the statistics of their steps, into ``f``."""
     src = source.f
@@ -392,9 +402,7 @@ class RunFile:
             self.scene_file = str(self.f.attrs.get("scene_file", ""))
             #: ``(first step, "CPU, n cores")`` of each stretch of steps; empty for a
             #: file written before machines were recorded.
-            self.machines: list[tuple[int, str]] = [
-                (int(k), str(m)) for k, m in json.loads(self.f.attrs.get("machines", "[]"))
-            ]
+            self.machines: list[tuple[int, str]] = _read_machines(self.f.attrs)
             self.radii = np.asarray(self.f["scene/radii"][:], dtype=np.float64)
             # Complete frames: those whose step is written, and whose other data is there.
             steps = self.f["frames/step"]
@@ -504,3 +512,12 @@ class RunFile:
         """The statistics as :class:`StepRecord` objects."""
         table = self.stats()
         return [StepRecord(**row) for row in table.to_dict("records")]
+
+
+def _read_machines(attrs: Any) -> list[tuple[int, str]]:
+    """The ``machines`` record of a run file's attributes; [] when absent or unreadable
+    (it says where the steps were timed, not what they are: the run stays readable)."""
+    try:
+        return [(int(k), str(m)) for k, m in json.loads(attrs.get("machines", "[]"))]
+    except (TypeError, ValueError):
+        return []

@@ -90,8 +90,8 @@ class CollapseSeries:
     those times (:func:`cocd.measure.surface_front`), from the back wall (m);
     ``profiles``: the height above the bed per bin at the asked times (rows), on
     ``x_edges``; ``stats``: the run's per-step statistics (:attr:`compute_s`
-    sums their detection, set-up and solve times); ``n_grains``: the column's
-    grains; ``d_mean``: their mean diameter (m).
+    sums their detection, set-up and solve times, steps taken again included);
+    ``n_grains``: the column's grains; ``d_mean``: their mean diameter (m).
     """
 
     label: str
@@ -151,7 +151,8 @@ class CollapseSeries:
 
     @property
     def compute_s(self) -> float:
-        """Seconds of detection, set-up and solving summed over the steps."""
+        """Seconds of detection, set-up and solving summed over the steps, the
+        attempts of steps taken again included (:func:`compute_seconds`)."""
         return compute_seconds(self.stats)
 
 

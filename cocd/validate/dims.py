@@ -178,7 +178,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "where it stands above the bed; the grains running ahead of it in a thin trail are "
         "left out), in R0, and its 2D / 3D ratio; "
         "`reached_end`: a front (2D or 3D) within two diameters of the bed's end, cut short "
-        "by it; `s_per_step_3d`: detection, set-up and solve per 3D step."
+        "by it; `s_per_step_3d`: detection, set-up and solve per 3D step, steps taken "
+        "again with a wider margin included."
     )
     files = base.report.write_table(
         out,

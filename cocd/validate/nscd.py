@@ -161,7 +161,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "(`surface_front`, a grain's reach) from the back wall in metres and in mean "
         "diameters (`_d`); `seed`: the packing; residuals are each scheme's own "
         "(`ccp_residual` for COCD, `coulomb_residual` for NSCD); `compute_s_*`: detection, "
-        "set-up and solve time of each whole run"
+        "set-up and solve time of each whole run, steps taken again included"
         + (
             f"; `nscd_twin_*`: NSCD at tol {twin_tol:g} against NSCD at {cfg.nscd_tol:g}, "
             "profile difference relative to the latter and front gap (twin - NSCD) in "

@@ -157,7 +157,8 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
             if twin_tol > 0
             else ""
         )
-        + "`compute_s`: detection, set-up and solve time of the whole run."
+        + "`compute_s`: detection, set-up and solve time of the whole run, steps "
+        "taken again with a wider margin included."
     )
     base.finish(
         out,
