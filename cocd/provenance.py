@@ -63,5 +63,24 @@ def cpu_name() -> str:
 
 
 def machine_name() -> str:
-    """``CPU, n cores``: what a step's time depends on, recorded with a run's steps."""
-    return f"{cpu_name()}, {os.cpu_count()} cores"
+    """``CPU, n cores``, and ``on k threads`` when the numerical libraries were given
+    fewer threads than cores (a run among several at once): what a step's time depends
+    on, recorded with a run's steps."""
+    cores = os.cpu_count() or 1
+    threads = _threads(cores)
+    text = f"{cpu_name()}, {cores} cores"
+    return text if threads >= cores else f"{text}, on {threads} thread{'s' * (threads > 1)}"
+
+
+def _threads(cores: int) -> int:
+    """Threads of numba's pool (the solvers' loops): numba's own count once it is
+    loaded, else what its environment variable will give it."""
+    import sys
+
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        return int(numba.get_num_threads())
+    try:
+        return int(os.environ.get("NUMBA_NUM_THREADS", cores))
+    except ValueError:
+        return cores

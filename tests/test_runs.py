@@ -226,6 +226,20 @@ def test_a_run_file_says_which_machine_made_which_steps(tmp_path, monkeypatch):
     assert resume_on(other, 12) == [(1, ""), (11, other)]
 
 
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="needs 2 cores to give a run fewer")
+def test_the_machine_says_when_a_run_had_fewer_threads_than_cores(monkeypatch):
+    """Runs made several at once, each on one thread, take longer a step: the machine
+    recorded with their steps says so."""
+    import numba
+
+    from cocd.provenance import cpu_name, machine_name
+
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 1)
+    assert machine_name() == f"{cpu_name()}, {os.cpu_count()} cores, on 1 thread"
+    monkeypatch.setattr(numba, "get_num_threads", lambda: os.cpu_count())
+    assert machine_name() == f"{cpu_name()}, {os.cpu_count()} cores"
+
+
 def test_resume_refuses_another_scene_or_time_step(tmp_path):
     base = {"builder": "column_2d", "params": {"n_grains": 30}, "run": {"steps": 2}}
     run(parse_config(base), tmp_path)

@@ -4,7 +4,7 @@ Layout (``format = "cocd-run"``, ``version = 1`` in the root attributes)::
 
     /                     attrs: format, version, dim, n_grains, contact_dim,
                           cocd_version, git_commit (``+dirty``: modified),
-                          machines (JSON: ``[first step, "CPU, n cores"]`` for
+                          machines (JSON: ``[first step, machine_name()]`` for
                           the machine of each stretch of steps, a resumed run's
                           next one appended when it differs; "" for steps made
                           before machines were recorded),
@@ -400,7 +400,7 @@ class RunFile:
             self.contact_dim = int(self.f.attrs["contact_dim"])
             self.config: dict[str, Any] = json.loads(self.f.attrs["config"])
             self.scene_file = str(self.f.attrs.get("scene_file", ""))
-            #: ``(first step, "CPU, n cores")`` of each stretch of steps; empty for a
+            #: ``(first step, machine_name())`` of each stretch of steps; empty for a
             #: file written before machines were recorded.
             self.machines: list[tuple[int, str]] = _read_machines(self.f.attrs)
             self.radii = np.asarray(self.f["scene/radii"][:], dtype=np.float64)

@@ -117,14 +117,14 @@ class CollapseSeries:
     #: share of the column's grain count stay at or below (the ``floor(share * n) + 1``-th
     #: largest; 0 when the flow holds fewer grains); None when not asked.
     speed_few_flow: FloatArray | None = None
-    #: ``(first step, "CPU, n cores")`` of each stretch of the run's steps
-    #: (:attr:`cocd.io.runfile.RunFile.machines`): where its time was measured; empty
-    #: for a run written before machines were recorded.
+    #: ``(first step, machine)`` (:func:`cocd.provenance.machine_name`) of each stretch
+    #: of the run's steps (:attr:`cocd.io.runfile.RunFile.machines`): where its time was
+    #: measured; empty for a run written before machines were recorded.
     machines: tuple[tuple[int, str], ...] = ()
 
     @property
     def machine(self) -> str:
-        """Where the steps were made, in words: ``CPU, n cores``, or each machine with
+        """Where the steps were made, in words: the machine, or each machine with
         the step it took the run on from; "not recorded" for steps made before
         machines were recorded."""
         if not self.machines:

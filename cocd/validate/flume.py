@@ -249,7 +249,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         "diameters; `n_free`: free grains (pile and bed); `n_pile`: the pile's grains; "
         "`s_per_step`: detection, set-up and solve per step, the attempts of steps taken "
         "again with a wider margin included; `redos`: those attempts; `machine`: where "
-        "the steps were made (CPU, cores)."
+        "the steps were made (CPU, cores, and threads when fewer than the cores)."
     )
     base.finish(
         out,
