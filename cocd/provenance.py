@@ -6,6 +6,7 @@ import functools
 import os
 import platform
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -75,8 +76,6 @@ def machine_name() -> str:
 def _threads(cores: int) -> int:
     """Threads of numba's pool (the solvers' loops): numba's own count once it is
     loaded, else what its environment variable will give it."""
-    import sys
-
     numba = sys.modules.get("numba")
     if numba is not None:
         return int(numba.get_num_threads())

@@ -161,10 +161,9 @@ def kept(
     runs made as they will be (same backend, tolerance and dimension), in one worker's
     solve seconds (detection, set-up and solve, steps taken again included; the rest
     of a run, writing frames and measuring them, is left out, so the figure leans low
-    on small problems). When
-    given, the rest is timed at that rate, the command's own on this problem size,
-    rather than at the announced one. ``runs``: how many runs
-    are left; fewer than the workers keep only that many busy.
+    on small problems). When given, the rest is timed at that rate, the command's own
+    on this problem size, rather than at the announced one. ``runs``: how many runs are
+    left; fewer than the workers keep only that many busy.
     """
     if _current.get("seconds") is None:
         return

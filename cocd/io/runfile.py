@@ -294,7 +294,7 @@ def _machines_on(source: RunFile) -> list[list[Any]]:
     them: the stretches that made its steps (those after that frame made none), then
     this machine from the next step, unless it made the last stretch."""
     last = int(source.steps[-1]) if source.n_frames else 0
-    machines = [[k, m] for k, m in source.machines if k <= last]
+    machines = [[k, m] for k, m in source.machines_to(last)]
     if last > 0 and not machines:  # a file written before machines were recorded
         machines = [[1, ""]]
     if not machines or machines[-1][1] != machine_name():
@@ -486,6 +486,11 @@ class RunFile:
         scene.time = fr.time
         scene.groups = {k: slice(a, b) for k, (a, b) in json.loads(s.attrs["groups"]).items()}
         return scene
+
+    def machines_to(self, step: int) -> list[tuple[int, str]]:
+        """The stretches of :attr:`machines` that made steps 1 to ``step`` (those
+        starting after it made none of them)."""
+        return [(k, m) for k, m in self.machines if k <= step]
 
     def stats(self) -> Any:
         """The per-step statistics as a pandas table (one row per step)."""

@@ -614,7 +614,7 @@ def measure_series(
             stats = stats[stats["t"] <= until + _FRAME_MATCH * dt].reset_index(drop=True)
         n_grains = int(column.sum())
         last_step = int(stats["step"].iloc[-1]) if len(stats) else 0
-        machines = tuple(m for m in rf.machines if m[0] <= max(last_step, 1))
+        machines = tuple(rf.machines_to(last_step))
     return CollapseSeries(
         label=label,
         path=path,
