@@ -146,9 +146,12 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     )
     write_table(tmp_path, "demo", table, title="Demo")
     write_meta(tmp_path, "demo", title="Demo", files=["demo.csv"], summary="")
+    # The same study's tables to a later end, written to a folder under the first.
+    write_table(tmp_path / "to4s", "demo", table.assign(error=table.error / 10), title="Demo")
     notes = tmp_path / "notes"
     notes.mkdir()
     (notes / "demo.md").write_text(
+        "Later, {{to4s/demo.error[t=0.2]}}. "
         "At t = 0.2 s the error is {{demo.error[t=0.2]}} ({{demo.error[t=0.2]:.1%}}); "
         "case b ranges to {{max demo.error[case=b]}} over {{count demo.error[case=b]}} rows. "
         "At rest from {{demo.rest_s[t=0.1]:.2f|never}} s and "
@@ -160,7 +163,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
     result = runner.invoke(app, ["bench", "readme", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     text = (tmp_path / "README.md").read_text()
-    assert "At t = 0.2 s the error is 0.25 (25.0%); case b ranges to 0.25 over 2 rows." in text
+    assert "Later, 0.025. At t = 0.2 s the error is 0.25 (25.0%); case b ranges" in text
+    assert "case b ranges to 0.25 over 2 rows." in text
     # An empty cell is written as the placeholder says, after its bar; a full one as
     # its format says (the default when none is given before the bar).
     assert "At rest from 1.50 s and not by the end; 2 s, never." in text
@@ -173,6 +177,8 @@ def test_a_note_takes_its_numbers_from_the_tables(tmp_path):
         ("{{demo.error[case=b]}}", "2 rows match, not one"),
         ("{{demo.speed[t=0.1]}}", "has no column 'speed'"),
         ("{{other.error}}", "no table"),
+        ("{{to2s/demo.error[t=0.1]}}", "no table"),
+        ("{{../demo.error[t=0.1]}}", "not a placeholder cocd can read"),
         ("{{demo.error[time=0.1]}}", "bad condition"),
         ("{{max demo.error[case=c]}}", "no row matches"),
         ("{{demo.rest_s[t=0.2]:.2f}}", "the cell is empty"),

@@ -294,6 +294,29 @@ def test_a_run_taken_on_to_a_later_end_is_still_read_at_the_earlier_one(tmp_path
     assert [f.name for f in folder.glob("measured_to*")] == ["measured_tools.json"]
 
 
+def test_runs_kept_in_a_folder_of_their_own_serve_two_outputs(tmp_path):
+    """`--runs` puts the run files apart from the tables: a second `--out` sharing them
+    reads the runs back, no step taken, into the same table; a file in the way of the
+    folder is a one-line error."""
+    runs = tmp_path / "scratch"
+    args = ["validate", "timestep", "--n", "30", "--dts", "2e-3,1e-3", "--times", "0.02",
+            "--solver", "clarabel", "--runs", str(runs)]  # fmt: skip
+    first = runner.invoke(app, [*args, "--out", str(tmp_path / "a")])
+    assert first.exit_code == 0, first.output
+    assert len(list((runs / "timestep").iterdir())) == 3  # two time steps and a twin
+    assert not (tmp_path / "a" / "runs").exists()
+    second = runner.invoke(app, [*args, "--out", str(tmp_path / "b")])
+    assert second.exit_code == 0, second.output
+    assert "(kept)" in second.output and "step " not in second.output
+    assert not (tmp_path / "b" / "runs").exists()
+    tables = [pd.read_csv(tmp_path / out / "timestep.csv") for out in ("a", "b")]
+    pd.testing.assert_frame_equal(*(t.drop(columns="compute_s") for t in tables))
+    (tmp_path / "file").write_text("")
+    bad = runner.invoke(app, [*args[:-1], str(tmp_path / "file"), "--out", str(tmp_path / "c")])
+    assert bad.exit_code == 2 and "a file is in the way of the folder" in bad.output
+    assert "--runs" in bad.output and "Traceback" not in bad.output
+
+
 def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, monkeypatch):
     """A job's free grains are its scene's; jobs of the same column share one build, and
     the other packing's column is built apart."""

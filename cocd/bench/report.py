@@ -330,7 +330,7 @@ def write_readme(out: Path, *, heading: str | None = None) -> Path:
 
 
 _PLACEHOLDER = re.compile(
-    r"\{\{\s*(?:(?P<agg>min|max|mean|count|same)\s+)?(?P<table>[\w-]+)\.(?P<column>\w+)"
+    r"\{\{\s*(?:(?P<agg>min|max|mean|count|same)\s+)?(?P<table>[\w-]+(?:/[\w-]+)*)\.(?P<column>\w+)"
     r"\s*(?:\[(?P<where>[^\]]*)\])?\s*(?::(?P<fmt>[^}|]+?))?\s*(?:\|(?P<empty>[^}]+?))?\s*\}\}"
 )
 
@@ -340,7 +340,9 @@ def fill_note(text: str, out: Path, name: str = "note") -> str:
 
     A placeholder ``{{table.column[key=value, ...]:format}}`` is the cell of
     ``out/table.csv`` in ``column`` on the one row whose ``key`` columns hold those
-    values (numbers compared to 1e-9 relative); ``{{max table.column[...]}}`` (or
+    values (numbers compared to 1e-9 relative); ``table`` may name a folder under ``out``
+    (``flume_to4s/flume``: the tables of a study written to ``--out OUT/flume_to4s``);
+    ``{{max table.column[...]}}`` (or
     ``min``, ``mean``, ``count``) aggregates the rows that match, and
     ``{{same table.column[...]}}`` is the value they all hold (an error if they
     differ: "each run made 220 steps" is then checked on every run). The format is

@@ -2,7 +2,8 @@
 
 Each case of ``cocd validate`` runs a few column collapses with
 :func:`cocd.runs.run`, one run file per simulation under
-``<out>/runs/<case>/<label>/run.h5``, then measures the saved frames and
+``<out>/runs/<case>/<label>/run.h5`` (``runs`` sets another folder for
+them), then measures the saved frames and
 writes a table, figures and ``<case>.meta.json`` under ``<out>``, whose
 ``README.md`` is rebuilt from them.
 
@@ -262,7 +263,8 @@ def collapse_job(
     surface: bool = False,
     few: Sequence[float] = (),
 ) -> CollapseJob:
-    """Packing ``seed``'s run of a validation case, in ``out/runs/<case>/<label>[_s<seed>]``.
+    """Packing ``seed``'s run of a validation case, in ``<runs>/<case>/<label>[_s<seed>]``
+    (``<runs>``: :func:`runs_folder`).
 
     ``what`` describes the run in the progress line (default: backend and tolerance);
     ``until`` defaults to the last of ``profile_times``; the rest are
@@ -275,7 +277,7 @@ def collapse_job(
     label = seed_label(label, seed)
     what = what or f"{how.solver}, tol {how.tol:g}"
     return CollapseJob(
-        folder=Path(out) / "runs" / case / label,
+        folder=runs_folder(how, out) / case / label,
         label=label,
         params=seed_params(params, seed),
         how=RunSettings(solver=how.solver, tol=how.tol, fallback=how.fallback, fresh=how.fresh),
@@ -990,6 +992,17 @@ def _restore(saved: dict[str, str | None]) -> None:
             os.environ[name] = value
 
 
+def runs_folder(how: RunSettings, out: Path) -> Path:
+    """Where a study's run files go: ``--runs`` (a one-line error unless it is a folder
+    that can be written), or ``out/runs``."""
+    if how.runs is None:
+        return Path(out) / "runs"
+    from cocd.outputs import writable_folder
+
+    writable_folder(Path(how.runs), "--runs")
+    return Path(how.runs)
+
+
 def seed_label(label: str, seed: int) -> str:
     """A run's label for packing ``seed``: seed 0 keeps the plain label (earlier runs resume)."""
     return label + (f"_s{seed}" if seed else "")
@@ -1134,6 +1147,12 @@ class RunSettings(StudySettings):
         ("clarabel",), "Backends tried when a step fails (comma-separated).", kind="names"
     )
     fresh: bool = option(False, "Start the runs over instead of resuming them.")
+    runs: Path | None = option(
+        None,
+        "Folder of the run files (default: OUT/runs). Runs of several GB can live on a "
+        "scratch disk, and two --out can share them: the tables of the same runs to another "
+        "--until, beside the first.",
+    )
 
     def __post_init__(self) -> None:
         """An unknown or unusable backend is refused here, before any scene is built."""

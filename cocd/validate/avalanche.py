@@ -27,7 +27,7 @@ calibration (``<name>_calibration.csv``) interpolates the coefficient whose laye
 avalanches at ``target_deg``, for a run at that coefficient to check.
 
 Each friction coefficient and packing is one sequence of holds (``workers`` of them
-at once); its row and holds are kept in ``OUT/runs/<name>/cells.csv`` and
+at once); its row and holds are kept in ``OUT/runs/<name>/cells.csv`` (or ``--runs``) and
 ``holds.csv``
 (:class:`~cocd.bench.results.Results`, keyed on the coefficient and every other
 option that shapes the result), so a command run again skips the coefficients
@@ -209,7 +209,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
         raise CocdError(f"need 0 <= start_deg < max_deg < 90, got {cfg.start_deg}, {cfg.max_deg}")
     out = Path(out)
     name = cfg.name
-    folder = out / "runs" / name
+    folder = base.runs_folder(cfg, out) / name
     setup = (
         f"n={n} solver={cfg.solver} tol={cfg.tol:g} fallback={cfg.fallback} dt={dt:g} "
         f"hold={hold:g} step={step_deg:g} start={cfg.start_deg:g} d={diameter:g} "
