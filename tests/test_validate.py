@@ -315,6 +315,10 @@ def test_runs_kept_in_a_folder_of_their_own_serve_two_outputs(tmp_path):
     bad = runner.invoke(app, [*args[:-1], str(tmp_path / "file"), "--out", str(tmp_path / "c")])
     assert bad.exit_code == 2 and "a file is in the way of the folder" in bad.output
     assert "--runs" in bad.output and "Traceback" not in bad.output
+    # The avalanche study keeps its cells there too, and refuses the file the same way.
+    bad = runner.invoke(app, ["validate", "avalanche", "--runs", str(tmp_path / "file"),
+                              "--out", str(tmp_path / "c")])  # fmt: skip
+    assert bad.exit_code == 2 and "a file is in the way of the folder" in bad.output
 
 
 def test_a_cases_scene_is_built_once_for_its_estimate_and_its_checks(tmp_path, monkeypatch):

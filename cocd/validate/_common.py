@@ -48,6 +48,7 @@ from cocd.bench import estimate, report
 from cocd.bench.study import Study, StudySettings, option
 from cocd.bench.study import register as study_register
 from cocd.errors import CocdError
+from cocd.outputs import writable_folder
 from cocd.runs import measured_names
 from cocd.stepper import DEFAULT_PENETRATION_TOL
 
@@ -310,7 +311,7 @@ def collapse_series(job: CollapseJob, progress: Callable[[str], Any] = print) ->
 
     config, key = _run_key(job)
     folder, label, how = job.folder, job.label, job.how
-    folder.mkdir(parents=True, exist_ok=True)
+    writable_folder(folder, "run folder")
     last = [time.perf_counter()]
 
     def tick(p: Progress) -> None:
@@ -993,14 +994,15 @@ def _restore(saved: dict[str, str | None]) -> None:
 
 
 def runs_folder(how: RunSettings, out: Path) -> Path:
-    """Where a study's run files go: ``--runs`` (a one-line error unless it is a folder
-    that can be written), or ``out/runs``."""
+    """Where a study's run files, and the measurements kept beside them, go: ``--runs``
+    (relative to the current folder), or ``out/runs``; a file in the way of ``--runs``
+    is a one-line error."""
     if how.runs is None:
         return Path(out) / "runs"
-    from cocd.outputs import writable_folder
-
-    writable_folder(Path(how.runs), "--runs")
-    return Path(how.runs)
+    path = Path(how.runs)
+    if path.exists() and not path.is_dir():
+        raise CocdError(f"--runs {path}: a file is in the way of the folder")
+    return path
 
 
 def seed_label(label: str, seed: int) -> str:
@@ -1149,9 +1151,10 @@ class RunSettings(StudySettings):
     fresh: bool = option(False, "Start the runs over instead of resuming them.")
     runs: Path | None = option(
         None,
-        "Folder of the run files (default: OUT/runs). Runs of several GB can live on a "
-        "scratch disk, and two --out can share them: the tables of the same runs to another "
-        "--until, beside the first.",
+        "Folder of the run files and the measurements kept beside them (default: OUT/runs; "
+        "a relative path is from the current folder). Runs of several GB can live on a "
+        "scratch disk, and two --out can share them, one command at a time: the tables of "
+        "the same runs to another --until, beside the first.",
     )
 
     def __post_init__(self) -> None:

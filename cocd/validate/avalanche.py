@@ -49,6 +49,7 @@ from cocd.bench import estimate
 from cocd.bench.results import Results
 from cocd.bench.study import option
 from cocd.errors import CocdError, SolverError
+from cocd.outputs import writable_folder
 from cocd.validate import _common as base
 from cocd.validate._common import RunSettings, register
 
@@ -210,6 +211,7 @@ def run(cfg: Settings, *, out: Path, progress: Callable[[str], Any] = print) -> 
     out = Path(out)
     name = cfg.name
     folder = base.runs_folder(cfg, out) / name
+    writable_folder(folder, "--runs" if cfg.runs is not None else "--out")
     setup = (
         f"n={n} solver={cfg.solver} tol={cfg.tol:g} fallback={cfg.fallback} dt={dt:g} "
         f"hold={hold:g} step={step_deg:g} start={cfg.start_deg:g} d={diameter:g} "
