@@ -2,10 +2,9 @@
 
 Each case of ``cocd validate`` runs a few column collapses with
 :func:`cocd.runs.run`, one run file per simulation under
-``<out>/runs/<case>/<label>/run.h5`` (``runs`` sets another folder for
-them), then measures the saved frames and
-writes a table, figures and ``<case>.meta.json`` under ``<out>``, whose
-``README.md`` is rebuilt from them.
+``<out>/runs/<case>/<label>/run.h5`` (or under ``--runs``: :func:`runs_folder`),
+then measures the saved frames and writes a table, figures and
+``<case>.meta.json`` under ``<out>``, whose ``README.md`` is rebuilt from them.
 
 Every simulation is resumable: a case run again continues each run file
 from its last frame (a run killed half-way loses at most one frame

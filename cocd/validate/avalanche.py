@@ -27,11 +27,11 @@ calibration (``<name>_calibration.csv``) interpolates the coefficient whose laye
 avalanches at ``target_deg``, for a run at that coefficient to check.
 
 Each friction coefficient and packing is one sequence of holds (``workers`` of them
-at once); its row and holds are kept in ``OUT/runs/<name>/cells.csv`` (or ``--runs``) and
-``holds.csv``
-(:class:`~cocd.bench.results.Results`, keyed on the coefficient and every other
-option that shapes the result), so a command run again skips the coefficients
-already measured with the same options (``fresh`` redoes them).
+at once); its row and holds are kept in ``cells.csv`` and ``holds.csv`` under
+``OUT/runs/<name>`` (or ``--runs``; :class:`~cocd.bench.results.Results`, keyed
+on the coefficient and every other option that shapes the result), so a command run
+again skips the coefficients already measured with the same options (``fresh``
+redoes them).
 """
 
 from __future__ import annotations
